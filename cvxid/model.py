@@ -1,0 +1,210 @@
+r"""The model being identified: :class:`ModelSpec`.
+
+.. math::
+
+    m\,\ddot x + \sum_i c_i\, g_i(x, \dot x) = f(t) + b\, x^{(q)}(t - \tau)
+
+A spec says which coordinate and input, whether the inertia :math:`m` is identified (or
+known), the library of candidate terms :math:`g_i`, the delayed feedback, the named sign
+constraints and the names of the physical parameters.  It owns the map between regression
+coefficients and physical parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+from .algebraic import AlgebraicOrders
+from .delay import DelayedFeedback
+from .errors import CvxidError
+from .library import Library
+from .terms import Derivative, Term, parse_term
+
+INERTIA, DELAY, LIBRARY = "inertia", "delay", "library"
+
+
+@dataclass(frozen=True)
+class Column:
+    """One regression column: its term, its group and its L1 weight."""
+
+    term: Term
+    group: str
+
+    @property
+    def name(self) -> str:
+        return self.term.name
+
+    @property
+    def penalty(self) -> float:
+        """Weight of the L1 penalty: 0 on inertia and delay columns, 1 on the library."""
+        return 1.0 if self.group == LIBRARY else 0.0
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """What to identify.
+
+    Parameters
+    ----------
+    library : Library
+        Candidate terms :math:`g_i` (left-hand side).
+    coordinate, input : str
+        Names of the measured coordinate and of the input.
+    inertia : bool
+        Identify :math:`m` (a column :math:`\\ddot x`); otherwise ``mass`` is known.
+    delay : DelayedFeedback, optional
+        The delayed feedback on the right-hand side.
+    nonnegative : tuple of str
+        Columns whose coefficient must be ``>= 0`` (term names; ``"x''"`` for inertia).
+    names : mapping
+        Physical parameter names for terms (``{"k1": "x"}``); the mass is ``m``, the delay
+        ``tau``.
+    orders : tuple, optional
+        User's algebraic orders ``(n, m)``; by default the smallest that remove every
+        initial condition.
+    """
+
+    library: Library
+    coordinate: str = "x"
+    input: str = "f"
+    inertia: bool = True
+    mass: float = 1.0
+    delay: DelayedFeedback | None = None
+    nonnegative: tuple[str, ...] = ()
+    names: Mapping[str, str] = field(default_factory=dict)
+    orders: tuple[int | None, int | None] = (None, None)
+
+    def __post_init__(self):
+        known = set(self.column_names)
+        for name in self.nonnegative:
+            if name not in known:
+                raise CvxidError(
+                    f"[model.constraints] nonnegative names '{name}', which is not a column of "
+                    f"the model; columns: {', '.join(self.column_names)}"
+                )
+        for pname, tname in self.names.items():
+            canonical = parse_term(tname, (self.coordinate,)).name
+            if canonical not in known:
+                raise CvxidError(
+                    f"[model.names] {pname} = '{tname}' is not a column of the model; "
+                    f"columns: {', '.join(self.column_names)}"
+                )
+        if not self.inertia and not self.mass > 0:
+            raise CvxidError(f"[model] mass must be positive when inertia = false, got {self.mass}")
+
+    # ------------------------------------------------------------------ columns
+    @property
+    def inertia_term(self) -> Derivative:
+        return Derivative(self.coordinate, 2)
+
+    @property
+    def columns(self) -> list[Column]:
+        """Inertia, the library and the delay's Taylor columns, each once."""
+        cols: dict[str, Column] = {}
+        delay_names = {t.name for t in self.delay.taylor_terms()} if self.delay else set()
+        if self.inertia:
+            cols[self.inertia_term.name] = Column(self.inertia_term, INERTIA)
+        for term in self.library:
+            group = DELAY if term.name in delay_names else LIBRARY
+            cols.setdefault(term.name, Column(term, group))
+        if self.delay:
+            for term in self.delay.taylor_terms():
+                cols.setdefault(term.name, Column(term, DELAY))
+        return list(cols.values())
+
+    @property
+    def column_names(self) -> list[str]:
+        return [c.name for c in self.columns]
+
+    @property
+    def highest_derivative(self) -> int:
+        high = 2
+        if self.delay:
+            high = max(high, self.delay.highest_order)
+        return high
+
+    @property
+    def algebraic_orders(self) -> AlgebraicOrders:
+        return AlgebraicOrders.for_derivative_order(self.highest_derivative, *self.orders)
+
+    @property
+    def needs_velocity(self) -> bool:
+        return any(c.term.needs_velocity for c in self.columns)
+
+    def with_library(self, library: Library) -> "ModelSpec":
+        keep = set(library.names) | {self.inertia_term.name}
+        if self.delay:
+            keep |= {t.name for t in self.delay.taylor_terms()}
+        return replace(
+            self,
+            library=library,
+            nonnegative=tuple(n for n in self.nonnegative if n in keep),
+            names={k: v for k, v in self.names.items() if parse_term(v, (self.coordinate,)).name in keep},
+        )
+
+    # ------------------------------------------------------------------ physics
+    def _derivative_order(self, name: str) -> int | None:
+        """Order d when column ``name`` is :math:`x^{(d)}` (x is order 0, x' order 1)."""
+        term = parse_term(name, (self.coordinate,))
+        if isinstance(term, Derivative):
+            return term.order
+        if term.name == self.coordinate:
+            return 0
+        if term.name == self.coordinate + "'":
+            return 1
+        return None
+
+    def physical_terms(self, coefficients: Mapping[str, float]) -> tuple[float, dict[str, float], float | None]:
+        """Mass, each library term's own coefficient and the delay, from regression
+        coefficients (column name → value).  With a Taylor delay, the delay's share is
+        removed from the columns it shares with physics and tau comes from the others."""
+        coefs = dict(coefficients)
+        tau = None
+        if self.delay:
+            physical_orders = {self._derivative_order(n) for n in self.library.names}
+            if self.inertia:
+                physical_orders.add(2)
+            pure = {
+                t.order: coefs.get(t.name, 0.0)
+                for t in self.delay.taylor_terms()
+                if t.order not in physical_orders
+            }
+            tau = self.delay.estimate_tau(pure)
+            for t in self.delay.taylor_terms():
+                if t.order in physical_orders and t.name in coefs:
+                    coefs[t.name] -= self.delay.contribution(t.order, tau)
+        mass = coefs.get(self.inertia_term.name, 0.0) if self.inertia else self.mass
+        return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau
+
+    def parameter_name(self, term_name: str) -> str:
+        """The physical name of a term's coefficient (``names`` in the spec, else the term)."""
+        for pname, tname in self.names.items():
+            if parse_term(tname, (self.coordinate,)).name == term_name:
+                return pname
+        return term_name
+
+    def physical(self, coefficients: Mapping[str, float]) -> dict[str, float]:
+        """Physical parameters by name: ``m``, each term's coefficient, ``tau``."""
+        mass, terms, tau = self.physical_terms(coefficients)
+        out = {"m": mass}
+        out.update({self.parameter_name(n): v for n, v in terms.items()})
+        if tau is not None:
+            out["tau"] = tau
+        return out
+
+    def __repr__(self) -> str:
+        lhs = ("m " if self.inertia else f"{self.mass:g} ") + f"{self.coordinate}''"
+        rhs = self.input
+        if self.delay:
+            rhs += f" + {self.delay.gain:g} {self.delay.signal}(t - tau)"
+        lines = [
+            f"ModelSpec: {lhs} + sum_i c_i g_i = {rhs}",
+            f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",
+        ]
+        if self.delay:
+            lines.append(f"  delay: {self.delay.method}, order {self.delay.taylor_order}")
+        if self.nonnegative:
+            lines.append(f"  constraints: {', '.join(n + ' >= 0' for n in self.nonnegative)}")
+        lines.append(f"  algebraic operation: {self.algebraic_orders}")
+        return "\n".join(lines)

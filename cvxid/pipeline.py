@@ -1,0 +1,124 @@
+"""The main job: a problem spec in, an identified model and its figures out.
+
+``run(spec)`` loads (or simulates) the experiments, builds the regressions, sweeps the
+:math:`\\lambda` path on the training data, selects the solution with the least test error
+and returns a :class:`RunResult` that prints, tabulates and serialises itself.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path as FilePath
+
+import numpy as np
+import pandas as pd
+
+from .data import Experiment
+from .errors import CvxidWarning
+from .identified import IdentifiedModel
+from .path import Path
+from .problem import Problem
+from .problems import ProblemSpec, load_problem
+from .regression import Regression
+
+RESULT_SCHEMA = 1
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced."""
+
+    spec: ProblemSpec
+    model: IdentifiedModel
+    path: Path
+    problem: Problem
+    train: Experiment
+    test: Experiment | None
+    test_mse: float
+    test_nmse: float
+    seconds: float
+    warnings: list[str] = field(default_factory=list)
+
+    def table(self) -> pd.DataFrame:
+        truth = self.spec.truth.physical if self.spec.truth else None
+        return self.model.table(truth)
+
+    def to_dict(self) -> dict:
+        phys = self.model.physical
+        return {
+            "schema": RESULT_SCHEMA,
+            "name": self.spec.name,
+            "equation": self.model.equation(),
+            "regression_equation": self.model.regression_equation(),
+            "coefficients": {k: float(v) for k, v in self.model.coefficients.items()},
+            "physical": {k: float(v) for k, v in phys.items()},
+            "truth": self.spec.truth.physical if self.spec.truth else None,
+            "support": self.model.support,
+            "test_mse": self.test_mse,
+            "test_nmse": self.test_nmse,
+            "lambda": self.model.lam,
+            "estimator": self.spec.fit.estimator,
+            "selection": self.spec.fit.selection,
+            "velocity": self.spec.fit.velocity,
+            "algebraic_orders": {"n": self.spec.model.algebraic_orders.n, "m": self.spec.model.algebraic_orders.m},
+            "solver": self.problem.solver,
+            "seconds": self.seconds,
+            "warnings": self.warnings,
+        }
+
+    def summary(self) -> str:
+        frame = self.table()
+        lines = [
+            f"cvxid: {self.spec.name}",
+            f"  identified: {self.model.equation()}",
+            f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
+            f"  lambda = {self.model.lam:.3g} ({self.spec.fit.estimator}, solver {self.problem.solver}, "
+            f"velocity {self.spec.fit.velocity})",
+            f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})",
+            "",
+            frame.to_string(float_format=lambda v: f"{v:.4f}"),
+            "",
+            f"  {self.seconds:.1f} s",
+        ]
+        lines += [f"  warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
+    def __repr__(self) -> str:
+        return self.summary()
+
+
+def run(spec: ProblemSpec | str | FilePath) -> RunResult:
+    """Identify the model of a problem spec (a :class:`ProblemSpec` or a path to one)."""
+    if not isinstance(spec, ProblemSpec):
+        spec = load_problem(spec)
+    start = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CvxidWarning)
+        train = spec.experiment("train")
+        test = spec.experiment("test") if "test" in spec.data else None
+        fit = spec.fit
+        velocity = "measured" if fit.velocity not in ("observer", "savgol", "spline") else fit.velocity
+        regression = Regression.build(spec.model, train, velocity)
+        problem = Problem.from_regression(regression, spec.model.nonnegative, fit.solver)
+        validation = Regression.build(spec.model, test, velocity) if test else None
+        path = Path.compute(
+            problem,
+            fit.lambdas,
+            validation.residual if validation else None,
+            estimator=fit.estimator,
+            debias=fit.debias,
+        )
+        best = path.best(fit.selection) if validation else path.fits[-1]
+        coefs = {n: (float(c) if s else 0.0) for n, c, s in zip(problem.names, best.coefficients, best.support)}
+        for n, c, w in zip(problem.names, best.coefficients, problem.penalties):
+            if w == 0:
+                coefs[n] = float(c)
+        model = IdentifiedModel(spec.model, coefs, best.lam)
+    messages = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+    test_mse = validation.mse(np.array(list(coefs.values()))) if validation else float("nan")
+    test_nmse = validation.nmse(np.array(list(coefs.values()))) if validation else float("nan")
+    return RunResult(
+        spec, model, path, problem, train, test, test_mse, test_nmse, time.perf_counter() - start, messages
+    )

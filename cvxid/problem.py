@@ -1,0 +1,222 @@
+r"""The identification as a cvxpy problem.
+
+.. math::
+
+    \min_{\tilde c}\; \frac{1}{n}\,\|R\,\tilde c - r\|_2^2
+        + \lambda \sum_i w_i\,|\tilde c_i|
+    \quad\text{s.t.}\quad \tilde c_j \ge 0,\ j \in \mathcal{N},
+
+on the reduced, scaled regression (see :mod:`cvxid.regression`): :math:`\lambda` is a
+``cp.Parameter``, so the problem is canonicalised once and re-solved for each value;
+:math:`w_i = 0` on inertia and delay columns; :math:`\mathcal{N}` are the named sign
+constraints.  Coefficients leave in physical units.  Scaling makes :math:`\lambda`
+dimensionless: the target has unit mean square, so :math:`\lambda \gtrsim 2` zeroes every
+penalised column.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import cvxpy as cp
+import numpy as np
+import pandas as pd
+from scipy.optimize import lsq_linear
+
+from .errors import CvxidError, CvxidWarning, SolverFailure
+from .regression import Reduced, Regression
+
+SOLVERS = ("CLARABEL", "OSQP")
+SOLVER_SETTINGS = {
+    # tight tolerances: the defaults misreport badly scaled problems (notes/solvers.md)
+    "CLARABEL": dict(tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10, tol_ktratio=1e-8),
+    "OSQP": dict(eps_abs=1e-9, eps_rel=1e-9, max_iter=200_000, polishing=True),
+}
+SUPPORT_TOL = 1e-7
+"""A scaled coefficient smaller than this (target has unit RMS) counts as zero."""
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One solution of the problem."""
+
+    lam: float
+    coefficients: np.ndarray  # physical units
+    scaled: np.ndarray
+    support: np.ndarray  # boolean mask
+    objective: float
+    train_mse: float  # mean squared equation error, physical units
+    status: str
+    solver: str
+    seconds: float
+    names: tuple[str, ...] = field(default=())
+
+    def series(self) -> pd.Series:
+        return pd.Series(self.coefficients, index=list(self.names), name=f"lambda={self.lam:.3g}")
+
+    def as_dict(self) -> dict[str, float]:
+        return {n: float(c) for n, c in zip(self.names, self.coefficients)}
+
+
+class Problem:
+    """A weighted-L1, sign-constrained least-squares problem over named coefficients.
+
+    Build it with :meth:`from_regression` (cvxid's own regressions) or :meth:`from_arrays`
+    (any user's regressors).
+    """
+
+    def __init__(
+        self,
+        reduced: Reduced,
+        names,
+        penalties,
+        nonnegative=(),
+        solver: str = "CLARABEL",
+    ):
+        self.reduced = reduced
+        self.names = tuple(names)
+        self.penalties = np.asarray(penalties, dtype=float)
+        k = len(self.names)
+        if self.penalties.shape != (k,) or np.any(self.penalties < 0):
+            raise CvxidError(f"weights must be {k} non-negative numbers, one per column")
+        unknown = [n for n in nonnegative if n not in self.names]
+        if unknown:
+            raise CvxidError(
+                f"nonnegative names unknown column(s) {', '.join(unknown)}; columns: {', '.join(self.names)}"
+            )
+        self.nonnegative = tuple(nonnegative)
+        self.solver = str(solver).upper()
+        if self.solver not in SOLVERS:
+            raise CvxidError(f"unknown solver '{solver}'; use one of {', '.join(SOLVERS)}")
+        if self.solver == "OSQP":
+            warnings.warn(
+                "OSQP is not accurate on badly scaled regressions like these (notes/solvers.md); "
+                "results are checked, but prefer CLARABEL",
+                CvxidWarning,
+                stacklevel=2,
+            )
+        self.c = cp.Variable(k, name="c")
+        self.lam = cp.Parameter(nonneg=True, name="lambda", value=0.0)
+        R, r = reduced.R, reduced.r
+        self.objective = cp.sum_squares(R @ self.c - r) / reduced.rows + self.lam * cp.norm1(
+            cp.multiply(self.penalties, self.c)
+        )
+        index = {n: i for i, n in enumerate(self.names)}
+        self.constraints = {n: self.c[index[n]] >= 0 for n in self.nonnegative}
+        self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
+
+    # ------------------------------------------------------------------ builders
+    @classmethod
+    def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None):
+        return cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver)
+
+    @classmethod
+    def from_arrays(cls, P, p, names, weights=None, nonnegative=(), solver="CLARABEL"):
+        """A problem from a user's own regressors ``P`` (n × k) and target ``p`` (n)."""
+        P = np.asarray(P, dtype=float)
+        p = np.asarray(p, dtype=float).ravel()
+        if P.ndim != 2 or P.shape[0] != p.size:
+            raise CvxidError(f"P must be (n, k) with n = len(p) = {p.size}; got shape {P.shape}")
+        if not (np.isfinite(P).all() and np.isfinite(p).all()):
+            raise CvxidError("P and p must be finite (no NaN/inf)")
+        names = list(names)
+        if len(names) != P.shape[1] or len(set(names)) != len(names):
+            raise CvxidError(f"names must be {P.shape[1]} distinct strings, one per column of P")
+        weights = np.ones(P.shape[1]) if weights is None else np.asarray(weights, dtype=float)
+        regression = Regression(P, p, tuple(names), tuple("library" for _ in names), weights)
+        return cls.from_regression(regression, nonnegative, solver)
+
+    # ------------------------------------------------------------------ solving
+    @property
+    def k(self) -> int:
+        return len(self.names)
+
+    def _finish(self, lam, scaled, status, seconds, objective=None) -> Fit:
+        red = self.reduced
+        scaled = np.asarray(scaled, dtype=float)
+        resid = red.R @ scaled - red.r
+        train = (resid @ resid + red.rho2) / red.rows
+        if objective is None:
+            objective = train + lam * float(self.penalties @ np.abs(scaled))
+        return Fit(
+            lam=float(lam),
+            coefficients=red.to_physical(scaled),
+            scaled=scaled,
+            support=np.abs(scaled) > SUPPORT_TOL,
+            objective=float(objective),
+            train_mse=float(train * red.target_scale**2),
+            status=status,
+            solver=self.solver,
+            seconds=seconds,
+            names=self.names,
+        )
+
+    def solve(self, lam: float) -> Fit:
+        """Solve at one value of :math:`\\lambda` (the problem is not rebuilt)."""
+        lam = float(lam)
+        if not np.isfinite(lam) or lam < 0:
+            raise CvxidError(f"lambda must be a finite number >= 0, got {lam}")
+        self.lam.value = lam
+        start = time.perf_counter()
+        try:
+            with warnings.catch_warnings():
+                # cvxpy's own "may be inaccurate" warning: the status is checked below
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+                self.cvxpy.solve(solver=self.solver, **SOLVER_SETTINGS[self.solver])
+        except cp.error.SolverError as exc:
+            raise SolverFailure(
+                f"solver {self.solver} failed at lambda = {lam:.3g} ({exc}); try solver = 'CLARABEL'"
+            ) from None
+        seconds = time.perf_counter() - start
+        status = self.cvxpy.status
+        if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            raise SolverFailure(
+                "the sign constraints cannot all hold together "
+                f"({', '.join(n + ' >= 0' for n in self.nonnegative)}); remove the one that "
+                "contradicts the others"
+            )
+        if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.c.value is None:
+            raise SolverFailure(
+                f"solver {self.solver} stopped with status '{status}' at lambda = {lam:.3g}; "
+                "no solution is reported. Try solver = 'CLARABEL' or a smaller library"
+            )
+        if status == cp.OPTIMAL_INACCURATE:
+            warnings.warn(
+                f"solver {self.solver} reports an inaccurate solution at lambda = {lam:.3g}",
+                CvxidWarning,
+                stacklevel=2,
+            )
+        return self._finish(lam, self.c.value, status, seconds, self.cvxpy.value)
+
+    def refit(self, support, lam: float = 0.0) -> Fit:
+        """Least squares on ``support`` (plus every unpenalised column), keeping the sign
+        constraints: the debiased estimate (scipy's bounded least squares)."""
+        mask = np.asarray(support, dtype=bool) | (self.penalties == 0)
+        idx = np.flatnonzero(mask)
+        lower = np.array([0.0 if self.names[i] in self.nonnegative else -np.inf for i in idx])
+        start = time.perf_counter()
+        sol = lsq_linear(self.reduced.R[:, idx], self.reduced.r, bounds=(lower, np.inf), method="bvls")
+        if not sol.success:
+            raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
+        scaled = np.zeros(self.k)
+        scaled[idx] = sol.x
+        fit = self._finish(lam, scaled, "optimal", time.perf_counter() - start)
+        return fit
+
+    def __str__(self) -> str:
+        red = self.reduced
+        lines = [
+            "minimize    (1/n) ||R c - r||^2 + lambda * sum_i w_i |c_i|",
+            f"  n = {red.rows:g} rows reduced to a {self.k}x{self.k} triangular factor R",
+            f"  lambda = {self.lam.value:g} (cvxpy Parameter), solver {self.solver}",
+        ]
+        if self.nonnegative:
+            lines.append("subject to  " + ", ".join(f"c[{n}] >= 0" for n in self.nonnegative))
+        lines.append(f"  {'column':<14} {'w_i':>4}  {'scale (c = c~ * s_p / s_i)':>26}")
+        for n, w, s in zip(self.names, self.penalties, red.column_scale):
+            lines.append(f"  {n:<14} {w:>4g}  {red.target_scale / s:>26.4e}")
+        return "\n".join(lines)
+
+    __repr__ = __str__

@@ -1,0 +1,164 @@
+r"""The linear regression :math:`P c \approx p` that the algebraic operation produces.
+
+Rows are samples of the transformed signals, one column per model column.  Before any solver
+sees it, the regression is *reduced*: columns and target are scaled to unit root-mean-square
+and a QR factorisation of :math:`[\tilde P\;\tilde p]` gives
+
+.. math::
+
+    \|\tilde P \tilde c - \tilde p\|^2 = \|R \tilde c - r\|^2 + \rho^2,
+
+with :math:`R` a small upper-triangular :math:`k \times k` factor.  Every solve works on
+:math:`(R, r)`, so its cost does not grow with the record length.  Row weights (the
+bootstrap's multinomial counts) enter as :math:`\sqrt{w_i}` row factors.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from .algebraic import AlgebraicTransform
+from .data import Experiment
+from .errors import CvxidError
+from .estimate import estimate_velocity
+from .model import ModelSpec
+from .terms import velocity_symbol
+
+
+@dataclass(frozen=True)
+class Reduced:
+    """A regression reduced to its triangular factor, in scaled units."""
+
+    R: np.ndarray
+    r: np.ndarray
+    rho2: float
+    rows: float
+    column_scale: np.ndarray
+    target_scale: float
+
+    def to_physical(self, scaled: np.ndarray) -> np.ndarray:
+        return np.asarray(scaled) * self.target_scale / self.column_scale
+
+    def to_scaled(self, physical: np.ndarray) -> np.ndarray:
+        return np.asarray(physical) * self.column_scale / self.target_scale
+
+
+@dataclass(frozen=True)
+class Regression:
+    """Columns ``P`` (n × k), target ``p``, column names, groups and L1 weights."""
+
+    P: np.ndarray
+    p: np.ndarray
+    names: tuple[str, ...]
+    groups: tuple[str, ...]
+    penalties: np.ndarray
+    experiments: tuple[str, ...] = ()
+
+    @classmethod
+    def build(
+        cls, model: ModelSpec, experiments: Experiment | list[Experiment], velocity: str = "observer"
+    ) -> "Regression":
+        """Transform one or several experiments (stacked) into a regression for ``model``."""
+        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        blocks = [_columns(model, e, velocity) for e in exps]
+        cols = model.columns
+        return cls(
+            P=np.vstack([b[0] for b in blocks]),
+            p=np.concatenate([b[1] for b in blocks]),
+            names=tuple(c.name for c in cols),
+            groups=tuple(c.group for c in cols),
+            penalties=np.array([c.penalty for c in cols]),
+            experiments=tuple(e.name for e in exps),
+        )
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.P.shape
+
+    def residual(self, coefficients: np.ndarray) -> np.ndarray:
+        return self.P @ np.asarray(coefficients) - self.p
+
+    def mse(self, coefficients: np.ndarray) -> float:
+        """Mean squared equation error :math:`\\|Pc - p\\|^2/n` (the paper's eq. 16)."""
+        return float(np.mean(self.residual(coefficients) ** 2))
+
+    def nmse(self, coefficients: np.ndarray) -> float:
+        """Equation error relative to the target's mean square (dimensionless)."""
+        return self.mse(coefficients) / float(np.mean(self.p**2))
+
+    def reduce(self, row_weights: np.ndarray | None = None) -> Reduced:
+        """Scale, then QR-reduce (optionally with row weights, e.g. bootstrap counts)."""
+        P, p = self.P, self.p
+        rows = float(len(p))
+        if row_weights is not None:
+            w = np.asarray(row_weights, dtype=float)
+            keep = w > 0
+            root = np.sqrt(w[keep])
+            P, p, rows = P[keep] * root[:, None], p[keep] * root, float(w.sum())
+        scale = np.sqrt(np.sum(P**2, axis=0) / rows)
+        zero = scale == 0
+        if zero.any():
+            bad = [n for n, z in zip(self.names, zero) if z]
+            raise CvxidError(
+                f"regression column(s) {', '.join(bad)} are identically zero (a constant or "
+                "absent signal?); drop those terms or use richer data"
+            )
+        tscale = float(np.sqrt(np.sum(p**2) / rows))
+        if tscale == 0:
+            raise CvxidError("the regression target is identically zero: the input carries no signal")
+        R = np.linalg.qr(np.column_stack([P / scale, p / tscale]), mode="r")
+        k = len(self.names)
+        return Reduced(R[:k, :k], R[:k, k], float(R[k, k] ** 2), rows, scale, tscale)
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame(
+            {
+                "group": self.groups,
+                "penalty": self.penalties,
+                "rms": np.sqrt(np.mean(self.P**2, axis=0)),
+            },
+            index=pd.Index(self.names, name="column"),
+        )
+
+    def __repr__(self) -> str:
+        n, k = self.shape
+        lines = [f"Regression: {n} rows × {k} columns (experiments: {', '.join(self.experiments)})"]
+        for name, group, pen, rms in zip(
+            self.names, self.groups, self.penalties, np.sqrt(np.mean(self.P**2, axis=0))
+        ):
+            lines.append(f"  {name:<14} {group:<8} weight {pen:g}   rms {rms:.3e}")
+        lines.append(f"  target         rms {np.sqrt(np.mean(self.p ** 2)):.3e}")
+        return "\n".join(lines)
+
+
+def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[str, np.ndarray]:
+    """Positions and (if any column needs one) velocities of an experiment."""
+    x = experiment.output(model.coordinate)
+    states = {model.coordinate: x}
+    if model.needs_velocity:
+        if velocity == "measured":
+            if model.coordinate not in experiment.velocities:
+                raise CvxidError(
+                    f"velocity = 'measured' but experiment '{experiment.name}' has no measured "
+                    f"velocity of '{model.coordinate}'; name its column or use an estimator"
+                )
+            v = experiment.velocities[model.coordinate]
+        else:
+            v = estimate_velocity(x, experiment.time, velocity)
+        states[velocity_symbol(model.coordinate)] = v
+    return states
+
+
+def _columns(model: ModelSpec, experiment: Experiment, velocity: str):
+    transform = AlgebraicTransform(experiment.time, model.algebraic_orders)
+    states = states_of(model, experiment, velocity)
+    P = np.column_stack(
+        [transform.column(*c.term.regression_signal(states)) for c in model.columns]
+    )
+    p = transform.column(experiment.input(model.input))
+    if not model.inertia:
+        p = p - model.mass * transform.column(states[model.coordinate], 2)
+    return P, p

@@ -1,0 +1,18 @@
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+os.environ.setdefault("MPLBACKEND", "Agg")
+ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = ROOT.parent / "shared" / "data"
+PAPER_DATA = SHARED_DATA / "paper_duffing_delay_DataMCK.mat"
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)
+
+
+needs_paper_data = pytest.mark.skipif(not PAPER_DATA.is_file(), reason="paper dataset absent")

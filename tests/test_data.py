@@ -1,0 +1,71 @@
+"""Experiment validation and loaders."""
+
+import numpy as np
+import pytest
+from scipy.io import savemat
+
+from cvxid import CvxidError, Experiment, load
+
+T = np.arange(100) * 0.01
+
+
+def make(**over):
+    kw = dict(time=T, outputs={"x": np.sin(T)}, inputs={"f": np.cos(T)}, name="e")
+    kw.update(over)
+    return Experiment(**kw)
+
+
+def test_valid_experiment_prints_its_shape():
+    e = make()
+    assert e.n == 100 and e.dt == pytest.approx(0.01)
+    assert "100 samples" in repr(e) and "outputs: x" in repr(e)
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (dict(outputs={"x": np.r_[np.sin(T[:-1]), np.nan]}), "NaN/inf value"),
+        (dict(inputs={"f": np.r_[np.inf, np.cos(T[1:])]}), "the first at sample 0"),
+        (dict(outputs={"x": np.sin(T[:-3])}), "same length"),
+        (dict(time=np.r_[T[:50], T[49:99]]), "not strictly increasing"),
+        (dict(time=np.r_[T[:50], T[50:] + 0.003]), "not uniformly sampled"),
+        (dict(time=T[:5], outputs={"x": T[:5]}, inputs={"f": T[:5]}), "at least 20"),
+        (dict(outputs={}), "no output"),
+        (dict(outputs={"x": np.ones((100, 2))}), "1-D array"),
+        (dict(outputs={"x": ["a"] * 100}), "not numeric"),
+    ],
+)
+def test_bad_input_is_named(change, message):
+    with pytest.raises(CvxidError, match=message):
+        make(**change)
+
+
+def test_csv_loader_reads_named_columns(tmp_path):
+    path = tmp_path / "d.csv"
+    path.write_text("t,pos,force\n" + "\n".join(f"{a},{b},{c}" for a, b, c in zip(T, np.sin(T), np.cos(T))))
+    e = load(path, time="t", outputs={"x": "pos"}, inputs={"f": "force"})
+    np.testing.assert_allclose(e.output("x"), np.sin(T))
+    with pytest.raises(CvxidError, match="no column named 'disp'.*available: force, pos, t"):
+        load(path, time="t", outputs={"x": "disp"}, inputs={"f": "force"})
+
+
+def test_mat_loader_reads_named_variables(tmp_path):
+    path = tmp_path / "d.mat"
+    savemat(path, {"t": T[:, None], "x_tr": np.sin(T)[:, None], "F": np.cos(T)[None, :]})
+    e = load(path, time="t", outputs={"x": "x_tr"}, inputs={"f": "F"})
+    np.testing.assert_allclose(e.input("f"), np.cos(T))
+    with pytest.raises(CvxidError, match="no variable named 'v'"):
+        load(path, time="t", outputs={"x": "v"}, inputs={"f": "F"})
+
+
+def test_loader_errors(tmp_path):
+    with pytest.raises(CvxidError, match="not found"):
+        load(tmp_path / "missing.csv", time="t", outputs={"x": "x"}, inputs={})
+    bad = tmp_path / "d.txt"
+    bad.write_text("1")
+    with pytest.raises(CvxidError, match="unknown data format"):
+        load(bad, time="t", outputs={"x": "x"}, inputs={})
+    junk = tmp_path / "junk.mat"
+    junk.write_bytes(b"not a mat file at all")
+    with pytest.raises(CvxidError, match="cannot be read as a MATLAB file"):
+        load(junk, time="t", outputs={"x": "x"}, inputs={})

@@ -1,0 +1,126 @@
+"""End to end: specs, the CLI and the paper's data."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from cvxid.cli import main
+from cvxid.pipeline import run
+from cvxid.problems import load_problem
+
+from .conftest import ROOT, needs_paper_data
+
+SMALL_SPEC = """
+name = "small"
+[truth]
+mass = 1.0
+coefficients = {{ "x'" = 0.5, "x" = 4.0, "x^3" = 1.0 }}
+delay = {{ signal = "x", gain = 1.0, tau = 0.1 }}
+history = "initial"
+[data.train.simulate]
+duration = 4.0
+dt = 1e-3
+x0 = 0.5
+seed = 1
+noise = {{ output = {noise}, input = 0.0 }}
+input = [ {{ kind = "sine", amplitude = 3.0, omega = 2.0 }}, {{ kind = "sine", amplitude = 2.0, omega = 5.3 }} ]
+[data.test.simulate]
+duration = 4.0
+dt = 1e-3
+x0 = -0.3
+seed = 2
+noise = {{ output = {noise}, input = 0.0 }}
+input = [ {{ kind = "sine", amplitude = 4.0, omega = 3.1 }} ]
+[model.library]
+order = 3
+cross = false
+[model.delay]
+signal = "x"
+gain = 1.0
+taylor_order = 3
+[model.constraints]
+nonnegative = ["x''"]
+[model.names]
+k1 = "x"
+k3 = "x^3"
+c1 = "x'"
+[fit]
+estimator = "{estimator}"
+velocity = "measured"
+lambdas = {{ min = 1e-6, max = 1e2, count = 30 }}
+"""
+
+
+def write_spec(tmp_path, **kw):
+    kw = {"noise": 0.002, "estimator": "stlsq", **kw}
+    path = tmp_path / "small.toml"
+    path.write_text(SMALL_SPEC.format(**kw))
+    return path
+
+
+def test_small_spec_recovers_structure_and_parameters(tmp_path):
+    result = run(write_spec(tmp_path))
+    assert set(result.model.support) == {"x''", "x", "x'", "x^3", "x'''"}
+    phys = result.model.physical
+    assert phys["m"] == pytest.approx(1.0, rel=0.01)
+    assert phys["k1"] == pytest.approx(4.0, rel=0.01)
+    assert phys["k3"] == pytest.approx(1.0, rel=0.01)
+    assert "x^3" in result.model.equation() and "x(t - " in result.model.equation()
+
+
+def test_cli_writes_result_json(tmp_path):
+    out = tmp_path / "out"
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(out)]) == 0
+    data = json.loads((out / "result.json").read_text())
+    for key in ("equation", "coefficients", "physical", "support", "test_mse", "lambda", "solver", "seconds"):
+        assert key in data
+    assert set(data["physical"]) >= {"m", "k1", "k3", "c1", "tau"}
+    assert (out / "path.png").is_file() and (out / "test_fit.png").is_file()
+    assert data["test_fit_percent"] > 95
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("name = 1\n", "name must be a string"),
+        ("[model]\n[data.train]\nfile='x.csv'\nbogus=1\n", "unknown key.*bogus"),
+        ("[model]\n", "missing section \\[data\\]"),
+        ("this is not toml", "not valid TOML"),
+        ("[model]\n[data.train]\nfile = 'nope.csv'\n", "data file not found"),
+        ("[model.library]\nextra=['magic']\n[data.train]\nfile='a.csv'\n", "unknown term or effect 'magic'"),
+        ("[model.delay]\ngain = 0\n[data.train]\nfile='a.csv'\n", "gain must be a finite non-zero"),
+        ("[model]\n[fit]\nsolver='gurobi'\n[data.train]\nfile='a.csv'\n", "solver must be one of"),
+        ("__import__ = 'os'\n[model]\n", "unknown top-level key"),
+    ],
+)
+def test_bad_specs_exit_2_with_one_line(tmp_path, capsys, text, message):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    assert main(["run", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cvxid: error:") and len(err.strip().splitlines()) == 1
+    assert __import__("re").search(message, err), err
+
+
+def test_console_script_has_no_traceback(tmp_path):
+    spec = tmp_path / "bad.toml"
+    spec.write_text("[model]\n[data.train]\nfile = 'nope.csv'\n")
+    proc = subprocess.run([sys.executable, "-m", "cvxid.cli", "run", str(spec)], capture_output=True, text=True)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr
+
+
+@needs_paper_data
+def test_paper_data_support_and_parameters():
+    """The paper's data with its true velocity: exactly the 7 true terms, and every
+    parameter at least as close to the truth as the paper's Table 2."""
+    result = run(ROOT / "problems" / "paper_duffing_data.toml")
+    assert set(result.model.support) == {"x''", "x", "x'", "x^2 x'", "x'^3", "x^3", "x'''"}
+    phys = result.model.physical
+    truth = {"m": 1.0, "k1": 6.0, "k3": 2.0, "c1": 1.0, "c2": 1.0, "c3": 1.0, "tau": 0.1998}
+    paper = {"m": 0.9885, "k1": 5.9830, "k3": 2.0041, "c1": 1.0609, "c2": 1.0074, "c3": 0.9973, "tau": 0.1656}
+    for name, value in truth.items():
+        assert abs(phys[name] - value) <= abs(paper[name] - value) + 1e-3, name
+    assert phys["tau"] == pytest.approx(0.1998, rel=0.02)
