@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 import cvxpy as cp
 import numpy as np
 import pandas as pd
+from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear
 
 from .errors import CvxidError, CvxidWarning, SolverFailure
@@ -97,15 +98,33 @@ class Problem:
                 CvxidWarning,
                 stacklevel=2,
             )
-        self.c = cp.Variable(k, name="c")
+        # Columns that are neither penalised nor constrained are projected out before the
+        # L1 solve (notes/solvers.md): a QR of R with those columns first splits
+        # ||R c - r||^2 into a block they can always zero and a block in the others only.
+        free = [i for i in range(k) if self.penalties[i] == 0 and self.names[i] not in self.nonnegative]
+        self._free = np.array(free, dtype=int)
+        self._rest = np.array([i for i in range(k) if i not in free], dtype=int)
+        Q, Rp = np.linalg.qr(reduced.R[:, np.r_[self._free, self._rest]])
+        rp = Q.T @ reduced.r
+        u = len(free)
+        self._back = (Rp[:u, :u], Rp[:u, u:], rp[:u])  # c_free = R_uu^-1 (r_u - R_us c_rest)
+        self.c = cp.Variable(len(self._rest), name="c")
         self.lam = cp.Parameter(nonneg=True, name="lambda", value=0.0)
-        R, r = reduced.R, reduced.r
-        self.objective = cp.sum_squares(R @ self.c - r) / reduced.rows + self.lam * cp.norm1(
-            cp.multiply(self.penalties, self.c)
+        self.objective = cp.sum_squares(Rp[u:, u:] @ self.c - rp[u:]) / reduced.rows + self.lam * cp.norm1(
+            cp.multiply(self.penalties[self._rest], self.c)
         )
-        index = {n: i for i, n in enumerate(self.names)}
+        index = {self.names[i]: j for j, i in enumerate(self._rest)}
         self.constraints = {n: self.c[index[n]] >= 0 for n in self.nonnegative}
         self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
+
+    def _full(self, rest: np.ndarray) -> np.ndarray:
+        """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
+        out = np.zeros(self.k)
+        out[self._rest] = rest
+        if self._free.size:
+            Ruu, Rus, ru = self._back
+            out[self._free] = solve_triangular(Ruu, ru - Rus @ rest)
+        return out
 
     # ------------------------------------------------------------------ builders
     @classmethod
@@ -132,6 +151,17 @@ class Problem:
     @property
     def k(self) -> int:
         return len(self.names)
+
+    def _attempt(self, settings: dict) -> str | None:
+        """One solve; the solver's error message, or None."""
+        try:
+            with warnings.catch_warnings():
+                # cvxpy's own "may be inaccurate" warning: the status is checked by solve()
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+                self.cvxpy.solve(solver=self.solver, **settings)
+        except cp.error.SolverError as exc:
+            return str(exc)
+        return None
 
     def _finish(self, lam, scaled, status, seconds, objective=None) -> Fit:
         red = self.reduced
@@ -160,15 +190,17 @@ class Problem:
             raise CvxidError(f"lambda must be a finite number >= 0, got {lam}")
         self.lam.value = lam
         start = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                # cvxpy's own "may be inaccurate" warning: the status is checked below
-                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
-                self.cvxpy.solve(solver=self.solver, **SOLVER_SETTINGS[self.solver])
-        except cp.error.SolverError as exc:
+        error = self._attempt(SOLVER_SETTINGS[self.solver])
+        if self.solver == "CLARABEL" and (error is not None or self.cvxpy.status == cp.OPTIMAL_INACCURATE):
+            # the tight tolerances occasionally stall on badly scaled data: retry once with
+            # the solver's defaults and keep the retry if it is sound (notes/solvers.md)
+            error = self._attempt({})
+        if error is not None:
+            other = "OSQP" if self.solver == "CLARABEL" else "CLARABEL"
             raise SolverFailure(
-                f"solver {self.solver} failed at lambda = {lam:.3g} ({exc}); try solver = 'CLARABEL'"
-            ) from None
+                f"solver {self.solver} failed at lambda = {lam:.3g} ({error}); try solver = "
+                f"'{other}', a smaller library or a narrower lambda range"
+            )
         seconds = time.perf_counter() - start
         status = self.cvxpy.status
         if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
@@ -188,7 +220,7 @@ class Problem:
                 CvxidWarning,
                 stacklevel=2,
             )
-        return self._finish(lam, self.c.value, status, seconds, self.cvxpy.value)
+        return self._finish(lam, self._full(self.c.value), status, seconds)
 
     def refit(self, support, lam: float = 0.0) -> Fit:
         """Least squares on ``support`` (plus every unpenalised column), keeping the sign
@@ -209,7 +241,8 @@ class Problem:
         red = self.reduced
         lines = [
             "minimize    (1/n) ||R c - r||^2 + lambda * sum_i w_i |c_i|",
-            f"  n = {red.rows:g} rows reduced to a {self.k}x{self.k} triangular factor R",
+            f"  n = {red.rows:g} rows reduced to a {self.k}x{self.k} triangular factor R; "
+            f"{self._free.size} free column(s) projected out, {self._rest.size} in the cvxpy problem",
             f"  lambda = {self.lam.value:g} (cvxpy Parameter), solver {self.solver}",
         ]
         if self.nonnegative:
