@@ -85,8 +85,12 @@ class Bootstrap:
 
 def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection):
     problem = Problem.from_regression(regression, nonnegative, solver, row_weights=counts)
+    if validate is None:  # out-of-bag rows validate (neighbouring rows are correlated: optimistic)
+        oob = counts == 0
+        P, p = regression.P[oob], regression.p[oob]
+        validate = lambda c: P @ c - p  # noqa: E731
     path = Path.compute(problem, lambdas, validate, estimator=estimator, debias=debias)
-    fit = path.best(selection) if validate is not None else path.fits[-1]
+    fit = path.best(selection)
     coefs = np.where(fit.support | (problem.penalties == 0), fit.coefficients, 0.0)
     return coefs, fit.lam
 
@@ -104,7 +108,11 @@ def bootstrap(
     physical: Callable[[dict], dict] | None = None,
     show_progress: bool = True,
 ) -> Bootstrap:
-    """Run ``settings.samples`` resampled paths; see the module docstring."""
+    """Run ``settings.samples`` resampled paths; see the module docstring.
+
+    ``validate`` maps coefficients to validation residuals (e.g. a test regression's
+    ``residual``); without it each sample is validated on its out-of-bag rows.
+    """
     n = regression.shape[0]
     rng = np.random.default_rng(settings.seed)
     size = max(int(round(settings.fraction * n)), regression.shape[1] + 1)

@@ -26,6 +26,39 @@ BLOCKS = 20
 neighbouring samples are strongly correlated, so single samples would understate it)."""
 
 
+def _sweep(problem: Problem, lambdas: np.ndarray, estimator: str, debias: bool) -> list[Fit]:
+    fits = []
+    for lam in lambdas:
+        if estimator == "stlsq":
+            fit = stlsq(problem, lam)
+        else:
+            fit = problem.solve(lam)
+            if debias:
+                fit = problem.refit(fit.support, lam)
+        fits.append(fit)
+    return fits
+
+
+def _cross_validated(problem: Problem, lambdas, folds: int, estimator: str, debias: bool) -> "Path":
+    """Blocked k-fold over time: each fold leaves out one contiguous block of rows, so
+    neighbouring (strongly correlated) samples never sit on both sides."""
+    reg = problem.regression
+    if reg is None:
+        raise CvxidError("cross-validation needs the rows: build the problem with from_regression or from_arrays")
+    if folds < 2:
+        raise CvxidError(f"folds must be at least 2, got {folds}")
+    blocks = np.array_split(np.arange(reg.shape[0]), folds)
+    errors = np.zeros((folds, lambdas.size))
+    for j, rows in enumerate(blocks):
+        weights = np.ones(reg.shape[0])
+        weights[rows] = 0.0
+        sub = Problem.from_regression(reg, problem.nonnegative, problem.solver, row_weights=weights)
+        P, p = reg.P[rows], reg.p[rows]
+        errors[j] = [np.mean((P @ f.coefficients - p) ** 2) for f in _sweep(sub, lambdas, estimator, debias)]
+    fits = _sweep(problem, lambdas, estimator, debias)
+    return Path(problem, fits, errors.mean(axis=0), errors.std(axis=0, ddof=1) / np.sqrt(folds))
+
+
 def _score(residual: np.ndarray) -> tuple[float, float]:
     """Mean squared residual and its block standard error."""
     sq = np.asarray(residual, dtype=float) ** 2
@@ -50,23 +83,34 @@ class Path:
         validate: Callable[[np.ndarray], np.ndarray] | None = None,
         estimator: str = "lasso",
         debias: bool = True,
+        folds: int | None = None,
     ) -> "Path":
+        """Sweep ``lambdas`` (validated by ``validate`` or by blocked ``folds``-fold CV)."""
         lambdas = np.sort(np.asarray(lambdas, dtype=float))[::-1]
         if lambdas.size == 0 or not np.all(np.isfinite(lambdas)) or np.any(lambdas < 0):
             raise CvxidError("lambdas must be a non-empty list of finite numbers >= 0")
         if estimator not in ESTIMATORS:
             raise CvxidError(f"unknown estimator '{estimator}'; use one of {', '.join(ESTIMATORS)}")
-        fits = []
-        for lam in lambdas:
-            if estimator == "stlsq":
-                fit = stlsq(problem, lam)
-            else:
-                fit = problem.solve(lam)
-                if debias:
-                    fit = problem.refit(fit.support, lam)
-            fits.append(fit)
+        if folds is not None:
+            if validate is not None:
+                raise CvxidError("give either a validation function or folds, not both")
+            return _cross_validated(problem, lambdas, int(folds), estimator, debias)
+        fits = _sweep(problem, lambdas, estimator, debias)
         scores = [_score(validate(f.coefficients)) if validate else (np.nan, np.nan) for f in fits]
         return cls(problem, fits, np.array([s[0] for s in scores]), np.array([s[1] for s in scores]))
+
+    @property
+    def pareto(self) -> pd.DataFrame:
+        """The Pareto front: for each number of terms, the least training error."""
+        frame = self.table().reset_index()
+        front = frame.loc[frame.groupby("terms")["train_mse"].idxmin()]
+        return front.set_index("terms")[["lambda", "train_mse", "validation_error"]]
+
+    def plot(self, selected: float | None = None):
+        """Coefficient traces and validation error against log lambda (a matplotlib figure)."""
+        from .plots import path_figure
+
+        return path_figure(self, selected)
 
     @property
     def lambdas(self) -> np.ndarray:

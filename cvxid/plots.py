@@ -45,3 +45,15 @@ def comparison_figure(time, measured, simulated, title: str = "free-run simulati
     bottom.set_xlabel("time [s]")
     fig.tight_layout()
     return fig
+
+
+def order_figure(table, best: int):
+    """Test error against library order, with AIC/BIC beside it (the paper's Fig. 1)."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.semilogy(table.index, table["test_mse"], "ko-", label="test MSE")
+    ax.axvline(best, color="r", ls="--", lw=1, label=f"chosen order {best}")
+    ax.set_xlabel("library order N = M")
+    ax.set_ylabel("test MSE")
+    ax.legend()
+    fig.tight_layout()
+    return fig

@@ -116,6 +116,7 @@ class Problem:
         index = {self.names[i]: j for j, i in enumerate(self._rest)}
         self.constraints = {n: self.c[index[n]] >= 0 for n in self.nonnegative}
         self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
+        self.regression: Regression | None = None  # the rows behind the factor, when known
 
     def _full(self, rest: np.ndarray) -> np.ndarray:
         """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
@@ -129,7 +130,9 @@ class Problem:
     # ------------------------------------------------------------------ builders
     @classmethod
     def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None):
-        return cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver)
+        problem = cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver)
+        problem.regression = regression
+        return problem
 
     @classmethod
     def from_arrays(cls, P, p, names, weights=None, nonnegative=(), solver="CLARABEL"):
@@ -236,6 +239,27 @@ class Problem:
         scaled[idx] = sol.x
         fit = self._finish(lam, scaled, "optimal", time.perf_counter() - start)
         return fit
+
+    # ------------------------------------------------------------------ exploration
+    def path(self, lambdas, validate=None, folds: int | None = None, estimator="lasso", debias=True):
+        """A :class:`~cvxid.path.Path` over ``lambdas``, validated by ``validate``
+        (coefficients → residuals, e.g. a test regression's ``residual``) or by blocked
+        ``folds``-fold cross-validation over time."""
+        from .path import Path
+
+        return Path.compute(self, lambdas, validate, estimator=estimator, debias=debias, folds=folds)
+
+    def bootstrap(self, samples=30, fraction=0.5, seed=0, n_jobs=1, lambdas=None, validate=None, **kw):
+        """A bootstrap ensemble (see :func:`cvxid.bootstrap.bootstrap`)."""
+        from .bootstrap import BootstrapSettings, bootstrap
+
+        if self.regression is None:
+            raise CvxidError("bootstrap needs the rows: build the problem with from_regression or from_arrays")
+        lambdas = np.logspace(-6, 2, 50) if lambdas is None else lambdas
+        return bootstrap(
+            self.regression, lambdas, validate, BootstrapSettings(samples, fraction, seed, n_jobs),
+            self.nonnegative, self.solver, **kw,
+        )
 
     def __str__(self) -> str:
         red = self.reduced

@@ -122,6 +122,15 @@ class ProblemSpec:
     data: dict[str, dict]
     truth: Truth | None
     description: str = ""
+    polynomial: tuple[int, bool, tuple[str, ...]] | None = None  # (order, cross, extra) of the library
+
+    def library(self, order: int) -> Library:
+        """The spec's polynomial library at another order (for the order search)."""
+        if self.polynomial is None:
+            raise CvxidError("the order search needs a polynomial library ([model.library] order = …), not a term list")
+        _, cross, extra = self.polynomial
+        coord = self.model.coordinate
+        return Library.polynomial(order, cross, coord) + [resolve_term(e, (coord,)) for e in extra]
 
     def experiment(self, which: str) -> Experiment:
         """Load or simulate the ``train`` or ``test`` experiment."""
@@ -163,7 +172,7 @@ def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> Pr
             f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}"
         )
     name = _string(raw, "name", "", default_name)
-    model = _model(_table(raw, "model", "", MODEL_KEYS, required=True))
+    model, polynomial = _model(_table(raw, "model", "", MODEL_KEYS, required=True))
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
     data_table = _table(raw, "data", "", {"train", "test"}, required=True)
     data = {k: _table(data_table, k, "data", DATA_KEYS) for k in data_table}
@@ -175,19 +184,22 @@ def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> Pr
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
-    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")))
+    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial)
 
 
-def _model(table: Table) -> ModelSpec:
+def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
     where = "model"
     coord = _string(table, "coordinate", where, "x")
     lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms"})
+    extra = tuple(_strings(lib_t, "extra", "model.library"))
+    polynomial = None
     if "terms" in lib_t:
         library = Library(parse_term(t, (coord,)) for t in _strings(lib_t, "terms", "model.library"))
     else:
         order = _number(lib_t, "order", "model.library", 3, positive=True, integer=True)
-        library = Library.polynomial(order, _bool(lib_t, "cross", "model.library", True), coord)
-    library = library + [resolve_term(e, (coord,)) for e in _strings(lib_t, "extra", "model.library")]
+        polynomial = (order, _bool(lib_t, "cross", "model.library", True), extra)
+        library = Library.polynomial(order, polynomial[1], coord)
+    library = library + [resolve_term(e, (coord,)) for e in extra]
     delay = None
     if "delay" in table:
         d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method"})
@@ -225,7 +237,7 @@ def _model(table: Table) -> ModelSpec:
             _number(alg, "n", "model.algebraic", integer=True) if "n" in alg else None,
             _number(alg, "m", "model.algebraic", integer=True) if "m" in alg else None,
         ),
-    )
+    ), polynomial
 
 
 def _fit(table: Table) -> FitSettings:

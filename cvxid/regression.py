@@ -74,6 +74,18 @@ class Regression:
             experiments=tuple(e.name for e in exps),
         )
 
+    def subset(self, names) -> "Regression":
+        """The regression restricted to the named columns (nested libraries share columns)."""
+        index = {n: i for i, n in enumerate(self.names)}
+        missing = [n for n in names if n not in index]
+        if missing:
+            raise CvxidError(f"the regression has no column(s) {', '.join(missing)}")
+        idx = [index[n] for n in names]
+        return Regression(
+            self.P[:, idx], self.p, tuple(names), tuple(self.groups[i] for i in idx),
+            self.penalties[idx], self.experiments,
+        )
+
     @property
     def shape(self) -> tuple[int, int]:
         return self.P.shape
