@@ -26,16 +26,29 @@ def _run(args) -> int:
     return 0
 
 
+def _bench(args) -> int:
+    from .bench import run_bench
+
+    run_bench(args.spec, args.order, args.naive_lambdas, args.json, args.jobs)
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(prog="cvxid", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="identify the model of a problem spec")
     p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md)")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
+    p_bench = sub.add_parser("bench", help="time the lambda path against the baselines")
+    p_bench.add_argument("spec")
+    p_bench.add_argument("--order", type=int, default=None, help="library order (default: the spec's)")
+    p_bench.add_argument("--naive-lambdas", type=int, default=5, help="lambdas timed for the naive cvxpy baseline")
+    p_bench.add_argument("--jobs", type=int, default=2, help="joblib workers for Algorithm 1")
+    p_bench.add_argument("--json", default=None, help="also write the figures to this JSON file")
     args = parser.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
-        return {"run": _run}[args.command](args)
+        return {"run": _run, "bench": _bench}[args.command](args)
     except CvxidError as exc:
         print(f"cvxid: error: {exc}", file=sys.stderr)
         return 2

@@ -9,12 +9,13 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path as FilePath
 
 import numpy as np
 import pandas as pd
 
+from .bootstrap import Bootstrap, bootstrap
 from .data import Experiment
 from .errors import CvxidWarning
 from .identified import IdentifiedModel
@@ -22,6 +23,7 @@ from .path import Path
 from .problem import Problem
 from .problems import ProblemSpec, load_problem
 from .regression import Regression
+from .selection import OrderSearch, order_search
 
 RESULT_SCHEMA = 1
 
@@ -40,6 +42,8 @@ class RunResult:
     test_nmse: float
     seconds: float
     warnings: list[str] = field(default_factory=list)
+    bootstrap: Bootstrap | None = None
+    order_search: OrderSearch | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -66,10 +70,22 @@ class RunResult:
             "solver": self.problem.solver,
             "seconds": self.seconds,
             "warnings": self.warnings,
+            "bootstrap": None if self.bootstrap is None else {
+                "samples": len(self.bootstrap.coefficients),
+                "terms": _records(self.bootstrap.summary()),
+                "physical": _records(self.bootstrap.physical_summary()),
+            },
+            "order_search": None if self.order_search is None else {
+                "best_order": self.order_search.best_order,
+                "table": _records(self.order_search.table),
+            },
         }
 
     def summary(self) -> str:
         frame = self.table()
+        if self.bootstrap is not None:
+            spread = self.bootstrap.physical_summary()
+            frame["boot std"] = spread["std"].reindex(frame.index)
         lines = [
             f"cvxid: {self.spec.name}",
             f"  identified: {self.model.equation()}",
@@ -82,11 +98,18 @@ class RunResult:
             "",
             f"  {self.seconds:.1f} s",
         ]
+        if self.order_search is not None:
+            lines[-1:-1] = [repr(self.order_search), ""]
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
     def __repr__(self) -> str:
         return self.summary()
+
+
+def _records(frame: pd.DataFrame) -> dict:
+    """A DataFrame as {row: {column: value}} with plain floats (JSON-ready)."""
+    return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
 
 
 def run(spec: ProblemSpec | str | FilePath) -> RunResult:
@@ -100,9 +123,22 @@ def run(spec: ProblemSpec | str | FilePath) -> RunResult:
         test = spec.experiment("test") if "test" in spec.data else None
         fit = spec.fit
         velocity = "measured" if fit.velocity not in ("observer", "savgol", "spline") else fit.velocity
-        regression = Regression.build(spec.model, train, velocity)
-        problem = Problem.from_regression(regression, spec.model.nonnegative, fit.solver)
-        validation = Regression.build(spec.model, test, velocity) if test else None
+        model_spec = spec.model
+        search = None
+        if fit.orders:
+            model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
+        regression = Regression.build(model_spec, train, velocity)
+        validation = Regression.build(model_spec, test, velocity) if test else None
+        if fit.orders:
+            boot = fit.bootstrap
+            search = order_search(
+                spec, fit.orders, boot.samples if boot else None, boot.fraction if boot else 0.5,
+                boot.seed if boot else 0, boot.n_jobs if boot else 1, regression, validation,
+            )
+            model_spec = model_spec.with_library(spec.library(search.best_order))
+            regression = regression.subset(model_spec.column_names)
+            validation = validation.subset(model_spec.column_names)
+        problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
         path = Path.compute(
             problem,
             fit.lambdas,
@@ -111,14 +147,22 @@ def run(spec: ProblemSpec | str | FilePath) -> RunResult:
             debias=fit.debias,
         )
         best = path.best(fit.selection) if validation else path.fits[-1]
-        coefs = {n: (float(c) if s else 0.0) for n, c, s in zip(problem.names, best.coefficients, best.support)}
-        for n, c, w in zip(problem.names, best.coefficients, problem.penalties):
-            if w == 0:
-                coefs[n] = float(c)
-        model = IdentifiedModel(spec.model, coefs, best.lam)
+        keep = best.support | (problem.penalties == 0)
+        coefs = {n: (float(c) if s else 0.0) for n, c, s in zip(problem.names, best.coefficients, keep)}
+        ensemble = None
+        if fit.bootstrap:
+            ensemble = (search.ensembles[search.best_order] if search else bootstrap(
+                regression, fit.lambdas, validation.residual if validation else None, fit.bootstrap,
+                model_spec.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection,
+            ))
+            coefs = {n: float(v) for n, v in ensemble.mean.items()}  # the paper's estimate (eq. 18)
+        model = IdentifiedModel(model_spec, coefs, best.lam)
     messages = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+    if ensemble is not None:
+        ensemble.physical = pd.DataFrame([model_spec.physical(dict(r)) for _, r in ensemble.coefficients.iterrows()])
     test_mse = validation.mse(np.array(list(coefs.values()))) if validation else float("nan")
     test_nmse = validation.nmse(np.array(list(coefs.values()))) if validation else float("nan")
     return RunResult(
-        spec, model, path, problem, train, test, test_mse, test_nmse, time.perf_counter() - start, messages
+        spec, model, path, problem, train, test, test_mse, test_nmse, time.perf_counter() - start, messages,
+        ensemble, search,
     )

@@ -14,6 +14,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from .bootstrap import BootstrapSettings
 from .data import Experiment, load
 from .delay import DelayedFeedback
 from .errors import CvxidError
@@ -109,6 +110,8 @@ class FitSettings:
     solver: str = "CLARABEL"
     debias: bool = True
     selection: str = "min"
+    bootstrap: "BootstrapSettings | None" = None
+    orders: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -150,7 +153,7 @@ TOP_KEYS = {"name", "description", "truth", "data", "model", "fit"}
 DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
-FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection"}
+FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs"}
 
 
 def load_problem(path) -> ProblemSpec:
@@ -262,7 +265,32 @@ def _fit(table: Table) -> FitSettings:
         solver=solver,
         debias=_bool(table, "debias", where, True),
         selection=_string(table, "selection", where, "min", choices=SELECTION_RULES),
+        bootstrap=_bootstrap(table),
+        orders=_orders(table),
     )
+
+
+def _bootstrap(table: Table) -> BootstrapSettings | None:
+    if "bootstrap" not in table:
+        return None
+    b = _table(table, "bootstrap", "fit", {"samples", "fraction", "seed"})
+    return BootstrapSettings(
+        samples=_number(b, "samples", "fit.bootstrap", 30, positive=True, integer=True),
+        fraction=_number(b, "fraction", "fit.bootstrap", 0.5, positive=True),
+        seed=_number(b, "seed", "fit.bootstrap", 0, integer=True),
+        n_jobs=_number(table, "n_jobs", "fit", 1, integer=True),
+    )
+
+
+def _orders(table: Table) -> tuple[int, ...]:
+    if "orders" not in table:
+        return ()
+    o = _table(table, "orders", "fit", {"min", "max"})
+    lo = _number(o, "min", "fit.orders", 1, positive=True, integer=True)
+    hi = _number(o, "max", "fit.orders", positive=True, integer=True)
+    if lo > hi or hi > 12:
+        raise CvxidError(f"spec: [fit.orders] needs 1 <= min <= max <= 12, got {lo}..{hi}")
+    return tuple(range(lo, hi + 1))
 
 
 def _truth(raw: Table, model: ModelSpec) -> Truth:

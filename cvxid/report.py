@@ -26,6 +26,11 @@ def write_report(result, out) -> Path:
     fig.savefig(out / "path.png", dpi=110)
     plt.close(fig)
     figures["path"] = "path.png"
+    if result.order_search is not None:
+        fig = result.order_search.plot()
+        fig.savefig(out / "orders.png", dpi=110)
+        plt.close(fig)
+        figures["orders"] = "orders.png"
     if result.test is not None:
         test = result.test
         coord = result.spec.model.coordinate

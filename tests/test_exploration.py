@@ -1,0 +1,104 @@
+"""Paths, selection rules, k-fold, bootstrap and order search (issue: Algorithm 1)."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from cvxid import CvxidError, Problem
+from cvxid.bootstrap import BootstrapSettings, bootstrap
+from cvxid.path import Path
+from cvxid.pipeline import run
+from cvxid.regression import Regression
+
+from .conftest import ROOT, needs_paper_data
+
+
+@pytest.fixture
+def sparse(rng):
+    n = 3000
+    scales = np.array([1.0, 1e3, 1e-2, 5.0, 0.3, 1e2])  # badly scaled, as algebraic columns are
+    P = rng.standard_normal((n, 6)) * scales
+    truth = np.array([1.5, 0.0, -200.0, 0.0, 0.0, 0.08])
+    p = P @ truth + 0.5 * rng.standard_normal(n)
+    Pt = rng.standard_normal((n, 6)) * scales
+    pt = Pt @ truth + 0.5 * rng.standard_normal(n)
+    return P, p, Pt, pt, truth
+
+
+def test_path_coefficients_frame_and_selection_rules(sparse):
+    P, p, Pt, pt, truth = sparse
+    prob = Problem.from_arrays(P, p, list("abcdef"))
+    path = prob.path(np.logspace(-6, 1, 30), validate=lambda c: Pt @ c - pt)
+    frame = path.coefficients
+    assert isinstance(frame, pd.DataFrame) and frame.shape == (30, 6) and list(frame.columns) == list("abcdef")
+    best = path.best("min")
+    np.testing.assert_array_equal(best.support, truth != 0)
+    one_se = path.best("1se")
+    assert one_se.lam >= best.lam  # never less sparse than the minimum
+    i = list(path.lambdas).index(one_se.lam)
+    j = int(np.nanargmin(path.validation))
+    assert path.validation[i] <= path.validation[j] + path.validation_se[j]
+    with pytest.raises(CvxidError, match="unknown selection rule"):
+        path.best("elbow")
+    assert set(path.pareto.index) <= set(range(7))
+
+
+def test_blocked_kfold_selects_the_true_support(sparse):
+    P, p, _, _, truth = sparse
+    path = Problem.from_arrays(P, p, list("abcdef")).path(np.logspace(-6, 1, 20), folds=5)
+    assert np.all(np.isfinite(path.validation)) and np.all(path.validation_se > 0)
+    np.testing.assert_array_equal(path.best("1se").support, truth != 0)
+
+
+def test_weighted_bootstrap_equals_explicit_resample(sparse):
+    P, p, Pt, pt, _ = sparse
+    reg = Regression(P, p, tuple("abcdef"), ("library",) * 6, np.ones(6))
+    counts = np.random.default_rng(3).multinomial(1500, np.full(len(p), 1 / len(p)))
+    rows = np.repeat(np.arange(len(p)), counts)
+    weighted = Problem.from_regression(reg, row_weights=counts).solve(1e-3)
+    explicit = Problem.from_arrays(P[rows], p[rows], list("abcdef")).solve(1e-3)
+    np.testing.assert_allclose(weighted.coefficients, explicit.coefficients, rtol=1e-6, atol=1e-9)
+
+
+def test_bootstrap_is_reproducible_and_parallel_safe(sparse):
+    P, p, Pt, pt, truth = sparse
+    reg = Regression(P, p, tuple("abcdef"), ("library",) * 6, np.ones(6))
+    kw = dict(lambdas=np.logspace(-5, 0, 12), validate=lambda c: Pt @ c - pt, show_progress=False)
+    one = bootstrap(reg, settings=BootstrapSettings(6, 0.5, seed=7, n_jobs=1), **kw)
+    two = bootstrap(reg, settings=BootstrapSettings(6, 0.5, seed=7, n_jobs=2), **kw)
+    pd.testing.assert_frame_equal(one.coefficients, two.coefficients)
+    other = bootstrap(reg, settings=BootstrapSettings(6, 0.5, seed=8, n_jobs=1), **kw)
+    assert not one.coefficients.equals(other.coefficients)
+    summary = one.summary()
+    assert list(summary.columns) == ["mean", "std", "q2.5", "q97.5", "inclusion"]
+    np.testing.assert_array_equal(summary["inclusion"].to_numpy() > 0.5, truth != 0)
+    np.testing.assert_allclose(summary["mean"].to_numpy(), truth, rtol=0.02, atol=1e-3)
+
+
+def test_out_of_bag_validation_without_a_test_set(sparse):
+    P, p, _, _, truth = sparse
+    boot = Problem.from_arrays(P, p, list("abcdef")).bootstrap(
+        samples=4, seed=1, lambdas=np.logspace(-5, 0, 10), show_progress=False
+    )
+    np.testing.assert_array_equal(boot.inclusion.to_numpy() == 1.0, truth != 0)
+
+
+def test_bootstrap_settings_are_checked():
+    with pytest.raises(CvxidError, match="fraction"):
+        BootstrapSettings(10, 1.5)
+    with pytest.raises(CvxidError, match="at least 2"):
+        BootstrapSettings(1, 0.5)
+
+
+@needs_paper_data
+@pytest.mark.slow
+def test_paper_algorithm1_picks_order_3_with_stable_inclusion():
+    result = run(ROOT / "problems" / "paper_duffing_data.toml")
+    assert result.order_search.best_order == 3
+    inclusion = result.bootstrap.inclusion
+    true_terms = {"x''", "x", "x'", "x^2 x'", "x'^3", "x^3", "x'''"}
+    for name, share in inclusion.items():
+        if name in true_terms:
+            assert share >= 0.9, name
+        else:
+            assert share <= 0.2, name
