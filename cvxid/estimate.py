@@ -124,3 +124,140 @@ def estimate_velocity(y: np.ndarray, t: np.ndarray, method: str, gains: Observer
         f"unknown velocity estimator '{method}'; use one of {', '.join(ESTIMATORS)} "
         "or the name of a measured velocity column"
     )
+
+
+def model_smoother(y, t, force, system, sigma: float | None = None, q: float | None = None,
+                   delayed: np.ndarray | None = None, passes: int = 2):
+    r"""Velocity from a Kalman (Rauch–Tung–Striebel) smoother built on a model.
+
+    The state :math:`s = (x, \dot x)` follows the model's own dynamics (RK4 over one
+    sample), linearised around a reference trajectory (first the Savitzky–Golay estimate,
+    then the previous pass); the model's error enters as white acceleration noise of
+    intensity ``q`` (chosen by the innovations' likelihood when not given); the measurement
+    is :math:`x` with noise ``sigma`` (estimated when not given).  Where the model predicts
+    the motion, the velocity keeps its full bandwidth instead of being low-passed.
+
+    ``delayed`` is the delayed signal of the feedback on the sample grid (an exogenous
+    input to the smoother; by default the smoothed position shifted by ``system.tau``).
+    Returns ``(x_smoothed, v_smoothed)``.
+    """
+    y = np.asarray(y, float)
+    t = np.asarray(t, float)
+    dt = float(t[1] - t[0])
+    sigma = noise_level(y) if sigma is None else float(sigma)
+    x_ref, v_ref = savgol_filter(y, savgol_window(y), 3, mode="interp"), savgol(y, dt)
+    f = np.asarray(force, float)
+    if delayed is None:
+        delayed = _shifted(x_ref, system, dt)
+    for _ in range(int(passes)):
+        A, c = _linearise(system, x_ref, v_ref, f, delayed, dt)
+        if q is None:
+            grid = np.logspace(-6, 4, 11)  # (acceleration units)^2 s
+            q_best = max(grid, key=lambda qq: _kalman(y, A, c, sigma, qq, dt, x_ref[0], v_ref[0])[2])
+        else:
+            q_best = q
+        x_ref, v_ref, _ = _kalman(y, A, c, sigma, q_best, dt, x_ref[0], v_ref[0], smooth=True)
+    return x_ref, v_ref
+
+
+def _shifted(x, system, dt):
+    lag = float(np.ravel(system.tau)[0]) / dt if system.gain else 0.0
+    if not system.gain:
+        return np.zeros_like(x)
+    idx = np.arange(len(x)) - lag
+    out = np.interp(idx, np.arange(len(x)), x)
+    out[idx < 0] = 0.0 if system.history == "zero" else x[0]
+    return out
+
+
+def _accel(system, x, v, f, xd):
+    coefs = np.atleast_2d(system.coefficients)[0]
+    coord = system.coordinate
+    states = {coord: x, coord + "'": v}
+    rhs = f + system.gain * xd
+    for term, c in zip(system.terms, coefs):
+        rhs = rhs - c * term.evaluate(states)
+    return rhs / float(np.ravel(system.mass)[0])
+
+
+def _step(system, x, v, f0, f1, d0, d1, dt):
+    """One RK4 step of every sample at once (inputs linear between samples)."""
+    fm, dm = 0.5 * (f0 + f1), 0.5 * (d0 + d1)
+    a1 = _accel(system, x, v, f0, d0)
+    a2 = _accel(system, x + 0.5 * dt * v, v + 0.5 * dt * a1, fm, dm)
+    v2 = v + 0.5 * dt * a1
+    a3 = _accel(system, x + 0.5 * dt * v2, v + 0.5 * dt * a2, fm, dm)
+    v3 = v + 0.5 * dt * a2
+    a4 = _accel(system, x + dt * v3, v + dt * a3, f1, d1)
+    v4 = v + dt * a3
+    return x + dt / 6 * (v + 2 * v2 + 2 * v3 + v4), v + dt / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+
+
+def _linearise(system, x, v, f, xd, dt):
+    """Transition matrices A_k and offsets c_k of s_{k+1} = A_k s_k + c_k around (x, v)."""
+    args = (f[:-1], f[1:], xd[:-1], xd[1:], dt)
+    x0, v0 = x[:-1], v[:-1]
+    base = np.array(_step(system, x0, v0, *args))
+    hx = 1e-6 * max(1.0, np.abs(x).max())
+    hv = 1e-6 * max(1.0, np.abs(v).max())
+    dx = (np.array(_step(system, x0 + hx, v0, *args)) - base) / hx
+    dv = (np.array(_step(system, x0, v0 + hv, *args)) - base) / hv
+    A = np.stack([dx.T, dv.T], axis=2)  # (n-1, 2, 2): columns d/dx, d/dv
+    c = base.T - np.einsum("kij,kj->ki", A, np.stack([x0, v0], axis=1))
+    return A, c
+
+
+def _kalman(y, A, c, sigma, q, dt, x0, v0, smooth=False):
+    """Kalman filter (log-likelihood) and optional RTS smoother; 2x2 algebra unrolled in
+    plain floats (numpy's per-call cost would dominate on 2x2 matrices)."""
+    n = len(y)
+    q11, q12, q22 = q * dt**3 / 3, q * dt**2 / 2, q * dt
+    R = sigma**2
+    a11, a12, a21, a22 = (A[:, 0, 0].tolist(), A[:, 0, 1].tolist(), A[:, 1, 0].tolist(), A[:, 1, 1].tolist())
+    c1, c2 = c[:, 0].tolist(), c[:, 1].tolist()
+    ys = np.asarray(y, float).tolist()
+    m1, m2 = float(x0), float(v0)
+    p11, p12, p22 = R, 0.0, (10 * sigma / dt) ** 2
+    filt = [None] * n
+    pred = [None] * n
+    loglik = 0.0
+    log2pi = np.log(2 * np.pi)
+    for k in range(n):
+        if k:
+            j = k - 1
+            b11, b12, b21, b22 = a11[j], a12[j], a21[j], a22[j]
+            m1, m2 = b11 * m1 + b12 * m2 + c1[j], b21 * m1 + b22 * m2 + c2[j]
+            # P = A P A^T + Q
+            t11, t12 = b11 * p11 + b12 * p12, b11 * p12 + b12 * p22
+            t21, t22 = b21 * p11 + b22 * p12, b21 * p12 + b22 * p22
+            p11 = t11 * b11 + t12 * b12 + q11
+            p12 = t11 * b21 + t12 * b22 + q12
+            p22 = t21 * b21 + t22 * b22 + q22
+        pred[k] = (m1, m2, p11, p12, p22)
+        s = p11 + R
+        g1, g2 = p11 / s, p12 / s
+        innov = ys[k] - m1
+        loglik -= 0.5 * (log2pi + np.log(s) + innov * innov / s)
+        m1, m2 = m1 + g1 * innov, m2 + g2 * innov
+        p11, p12, p22 = p11 - g1 * p11, p12 - g1 * p12, p22 - g2 * p12
+        filt[k] = (m1, m2, p11, p12, p22)
+    if not smooth:
+        return None, None, loglik
+    xs, vs = np.empty(n), np.empty(n)
+    s1, s2, s11, s12, s22 = filt[-1]
+    xs[-1], vs[-1] = s1, s2
+    for k in range(n - 2, -1, -1):
+        f1, f2, f11, f12, f22 = filt[k]
+        n1, n2, n11, n12, n22 = pred[k + 1]
+        b11, b12, b21, b22 = a11[k], a12[k], a21[k], a22[k]
+        # G = P_f A^T Pp^-1
+        u11, u12 = f11 * b11 + f12 * b12, f11 * b21 + f12 * b22
+        u21, u22 = f12 * b11 + f22 * b12, f12 * b21 + f22 * b22
+        det = n11 * n22 - n12 * n12
+        i11, i12, i22 = n22 / det, -n12 / det, n11 / det
+        G11, G12 = u11 * i11 + u12 * i12, u11 * i12 + u12 * i22
+        G21, G22 = u21 * i11 + u22 * i12, u21 * i12 + u22 * i22
+        d1, d2 = s1 - n1, s2 - n2
+        s1, s2 = f1 + G11 * d1 + G12 * d2, f2 + G21 * d1 + G22 * d2
+        xs[k], vs[k] = s1, s2
+    return xs, vs, loglik
