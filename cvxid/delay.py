@@ -25,6 +25,8 @@ from scipy.optimize import least_squares
 from .errors import CvxidError, CvxidWarning
 from .terms import Derivative
 
+METHODS = ("taylor", "exact")
+
 
 @dataclass(frozen=True)
 class DelayedFeedback:
@@ -47,6 +49,8 @@ class DelayedFeedback:
     gain: float | None = None
     taylor_order: int = 3
     method: str = "taylor"
+    tau_max: float = 0.5
+    tau_min: float = 0.0
 
     def __post_init__(self):
         if self.derivative not in (0, 1):
@@ -54,20 +58,29 @@ class DelayedFeedback:
                 f"[model.delay] signal must be the position or the velocity of a coordinate "
                 f"(e.g. 'x' or \"x'\"), got derivative order {self.derivative}"
             )
-        if self.method != "taylor":
+        if self.method not in METHODS:
             raise CvxidError(
-                f"[model.delay] method '{self.method}' is not available in this version; use 'taylor'"
+                f"[model.delay] method must be one of {', '.join(METHODS)}, got '{self.method}'"
             )
-        if self.gain is None:
+        if self.gain is None and self.method == "taylor":
             raise CvxidError(
-                "[model.delay] gain is required (a known feedback gain, e.g. gain = 2.0)"
+                "[model.delay] gain is required with method = 'taylor' (a known feedback gain, "
+                "e.g. gain = 2.0); with method = 'exact' it may be left out and is estimated"
             )
-        if not np.isfinite(self.gain) or self.gain == 0:
+        if self.gain is not None and (not np.isfinite(self.gain) or self.gain == 0):
             raise CvxidError(f"[model.delay] gain must be a finite non-zero number, got {self.gain}")
         if self.taylor_order < 1:
             raise CvxidError(
                 f"[model.delay] taylor_order must be at least 1, got {self.taylor_order}"
             )
+        if not 0 <= self.tau_min < self.tau_max:
+            raise CvxidError(
+                f"[model.delay] needs 0 <= tau_min < tau_max, got {self.tau_min} and {self.tau_max}"
+            )
+
+    @property
+    def exact(self) -> bool:
+        return self.method == "exact"
 
     @property
     def signal(self) -> str:
@@ -75,11 +88,13 @@ class DelayedFeedback:
 
     @property
     def highest_order(self) -> int:
-        """Highest time derivative of the coordinate that the Taylor columns contain."""
-        return self.derivative + self.taylor_order
+        """Highest time derivative of the coordinate that the delay's columns contain."""
+        return self.derivative + (0 if self.exact else self.taylor_order)
 
     def taylor_terms(self) -> list[Derivative]:
-        """The columns :math:`x^{(q+j)}`, :math:`j = 0..r`."""
+        """The columns :math:`x^{(q+j)}`, :math:`j = 0..r` (none for the exact delay)."""
+        if self.exact:
+            return []
         return [Derivative(self.coordinate, self.derivative + j) for j in range(self.taylor_order + 1)]
 
     def contribution(self, order: int, tau: float) -> float:

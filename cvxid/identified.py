@@ -36,6 +36,7 @@ class IdentifiedModel:
     coefficients: dict[str, float]
     lam: float = 0.0
     info: dict = field(default_factory=dict)
+    tau: float | None = None  # the delay an exact-delay regression was built for
 
     @property
     def support(self) -> list[str]:
@@ -43,11 +44,11 @@ class IdentifiedModel:
 
     @property
     def physical(self) -> dict[str, float]:
-        return self.spec.physical(self.coefficients)
+        return self.spec.physical(self.coefficients, self.tau)
 
     def system(self, history: str = "zero") -> System:
         """The identified system, ready to simulate (terms off the support dropped)."""
-        mass, terms, tau = self.spec.physical_terms(self.coefficients)
+        mass, terms, tau, gain = self.spec.physical_terms(self.coefficients, self.tau)
         lib = [t for t in self.spec.library if terms[t.name] != 0.0]
         delay = self.spec.delay
         return System(
@@ -55,7 +56,7 @@ class IdentifiedModel:
             coefficients=np.array([terms[t.name] for t in lib]),
             mass=mass,
             coordinate=self.spec.coordinate,
-            gain=delay.gain if delay else 0.0,
+            gain=gain or 0.0,
             tau=tau or 0.0,
             derivative=delay.derivative if delay else 0,
             history=history,

@@ -19,7 +19,7 @@ from .algebraic import AlgebraicOrders
 from .delay import DelayedFeedback
 from .errors import CvxidError
 from .library import Library
-from .terms import Derivative, Term, parse_term
+from .terms import DelayedSignal, Derivative, Term, parse_term
 
 INERTIA, DELAY, LIBRARY = "inertia", "delay", "library"
 
@@ -111,7 +111,15 @@ class ModelSpec:
         if self.delay:
             for term in self.delay.taylor_terms():
                 cols.setdefault(term.name, Column(term, DELAY))
+            if self.delay.exact and self.delay.gain is None:
+                term = self.delayed_term
+                cols[term.name] = Column(term, DELAY)
         return list(cols.values())
+
+    @property
+    def delayed_term(self) -> DelayedSignal:
+        """The exact delayed signal (its column carries minus the unknown gain)."""
+        return DelayedSignal(self.coordinate, self.delay.derivative)
 
     @property
     def column_names(self) -> list[str]:
@@ -155,13 +163,20 @@ class ModelSpec:
             return 1
         return None
 
-    def physical_terms(self, coefficients: Mapping[str, float]) -> tuple[float, dict[str, float], float | None]:
-        """Mass, each library term's own coefficient and the delay, from regression
-        coefficients (column name → value).  With a Taylor delay, the delay's share is
-        removed from the columns it shares with physics and tau comes from the others."""
+    def physical_terms(
+        self, coefficients: Mapping[str, float], tau: float | None = None
+    ) -> tuple[float, dict[str, float], float | None, float | None]:
+        """Mass, each library term's own coefficient, the delay and the feedback gain, from
+        regression coefficients (column name → value).
+
+        With a Taylor delay, tau comes from the pure-delay columns and the delay's share is
+        removed from the columns it shares with physics.  With the exact delay, ``tau`` is
+        the delay the regression was built for and an unknown gain is minus its column's
+        coefficient.
+        """
         coefs = dict(coefficients)
-        tau = None
-        if self.delay:
+        gain = self.delay.gain if self.delay else None
+        if self.delay and not self.delay.exact:
             physical_orders = {self._derivative_order(n) for n in self.library.names}
             if self.inertia:
                 physical_orders.add(2)
@@ -174,8 +189,13 @@ class ModelSpec:
             for t in self.delay.taylor_terms():
                 if t.order in physical_orders and t.name in coefs:
                     coefs[t.name] -= self.delay.contribution(t.order, tau)
+        elif self.delay:
+            if tau is None:
+                raise CvxidError("an exact-delay model needs the delay tau it was fitted for")
+            if gain is None:
+                gain = -coefs.get(self.delayed_term.name, 0.0)
         mass = coefs.get(self.inertia_term.name, 0.0) if self.inertia else self.mass
-        return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau
+        return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau, gain
 
     def parameter_name(self, term_name: str) -> str:
         """The physical name of a term's coefficient (``names`` in the spec, else the term)."""
@@ -184,20 +204,24 @@ class ModelSpec:
                 return pname
         return term_name
 
-    def physical(self, coefficients: Mapping[str, float]) -> dict[str, float]:
-        """Physical parameters by name: ``m``, each term's coefficient, ``tau``."""
-        mass, terms, tau = self.physical_terms(coefficients)
+    def physical(self, coefficients: Mapping[str, float], tau: float | None = None) -> dict[str, float]:
+        """Physical parameters by name: ``m``, each term's coefficient, ``tau`` (and the
+        feedback ``gain`` when it was estimated)."""
+        mass, terms, tau, gain = self.physical_terms(coefficients, tau)
         out = {"m": mass}
         out.update({self.parameter_name(n): v for n, v in terms.items()})
         if tau is not None:
             out["tau"] = tau
+        if self.delay and self.delay.gain is None:
+            out["gain"] = gain
         return out
 
     def __repr__(self) -> str:
         lhs = ("m " if self.inertia else f"{self.mass:g} ") + f"{self.coordinate}''"
         rhs = self.input
         if self.delay:
-            rhs += f" + {self.delay.gain:g} {self.delay.signal}(t - tau)"
+            gain = "b" if self.delay.gain is None else f"{self.delay.gain:g}"
+            rhs += f" + {gain} {self.delay.signal}(t - tau)"
         lines = [
             f"ModelSpec: {lhs} + sum_i c_i g_i = {rhs}",
             f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",

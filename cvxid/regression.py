@@ -19,13 +19,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
+from scipy.interpolate import CubicSpline
 
 from .algebraic import AlgebraicTransform
 from .data import Experiment
 from .errors import CvxidError
 from .estimate import estimate_velocity
 from .model import ModelSpec
-from .terms import velocity_symbol
+from .terms import DelayedSignal, velocity_symbol
 
 
 @dataclass(frozen=True)
@@ -59,20 +60,15 @@ class Regression:
 
     @classmethod
     def build(
-        cls, model: ModelSpec, experiments: Experiment | list[Experiment], velocity: str = "observer"
+        cls,
+        model: ModelSpec,
+        experiments: Experiment | list[Experiment],
+        velocity: str = "savgol",
+        tau: float | None = None,
     ) -> "Regression":
-        """Transform one or several experiments (stacked) into a regression for ``model``."""
-        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
-        blocks = [_columns(model, e, velocity) for e in exps]
-        cols = model.columns
-        return cls(
-            P=np.vstack([b[0] for b in blocks]),
-            p=np.concatenate([b[1] for b in blocks]),
-            names=tuple(c.name for c in cols),
-            groups=tuple(c.group for c in cols),
-            penalties=np.array([c.penalty for c in cols]),
-            experiments=tuple(e.name for e in exps),
-        )
+        """Transform one or several experiments (stacked) into a regression for ``model``
+        (for an exact delay, at the delay ``tau``)."""
+        return DelayFamily(model, experiments, velocity).at(tau)
 
     def subset(self, names) -> "Regression":
         """The regression restricted to the named columns (nested libraries share columns)."""
@@ -164,13 +160,68 @@ def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[s
     return states
 
 
-def _columns(model: ModelSpec, experiment: Experiment, velocity: str):
-    transform = AlgebraicTransform(experiment.time, model.algebraic_orders)
-    states = states_of(model, experiment, velocity)
-    P = np.column_stack(
-        [transform.column(*c.term.regression_signal(states)) for c in model.columns]
-    )
-    p = transform.column(experiment.input(model.input))
-    if not model.inertia:
-        p = p - model.mass * transform.column(states[model.coordinate], 2)
-    return P, p
+class DelayFamily:
+    """Regressions of one model and data over the delay :math:`\tau`.
+
+    Columns that do not depend on the delay are transformed once; :meth:`at` adds the
+    delayed signal :math:`x^{(q)}(t-\tau)` (interpolated by a cubic spline), as a column
+    when the gain is unknown or moved into the target when it is known.  With an exact
+    delay every experiment restarts its integrals at ``tau_max`` (the first ``tau_max``
+    seconds serve as the delayed signal's history), so regressions at different delays
+    share their rows and their errors compare.
+    """
+
+    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol"):
+        self.model = model
+        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        self.experiments = exps
+        exact = model.delay is not None and model.delay.exact
+        self.start = model.delay.tau_max if exact else 0.0
+        self.blocks = []
+        for e in exps:
+            if exact and e.duration < 2 * self.start:
+                raise CvxidError(
+                    f"experiment '{e.name}' lasts {e.duration:g} s, too short for delays up to "
+                    f"tau_max = {self.start:g} s (it needs at least twice that); lower "
+                    "[model.delay] tau_max or use a longer record"
+                )
+            states = states_of(model, e, velocity)
+            keep = e.time >= e.time[0] + self.start - 1e-9 * e.dt
+            transform = AlgebraicTransform(e.time[keep], model.algebraic_orders)
+            window = {k: v[keep] for k, v in states.items()}
+            cols = [c for c in model.columns if not isinstance(c.term, DelayedSignal)]
+            base = {c.name: transform.column(*c.term.regression_signal(window)) for c in cols}
+            p = transform.column(e.input(model.input)[keep])
+            if not model.inertia:
+                p = p - model.mass * transform.column(window[model.coordinate], 2)
+            spline = CubicSpline(e.time, e.output(model.coordinate)) if exact else None
+            self.blocks.append((transform, base, p, spline, e.time[keep]))
+
+    def at(self, tau: float | None = None) -> Regression:
+        model = self.model
+        exact = model.delay is not None and model.delay.exact
+        if exact:
+            if tau is None:
+                raise CvxidError("an exact-delay regression needs a delay tau")
+            if not model.delay.tau_min <= tau <= model.delay.tau_max:
+                raise CvxidError(
+                    f"tau = {tau:g} is outside [tau_min, tau_max] = [{model.delay.tau_min:g}, "
+                    f"{model.delay.tau_max:g}]"
+                )
+        cols = model.columns
+        Ps, ps = [], []
+        for transform, base, p, spline, t in self.blocks:
+            if exact:
+                delayed = transform.column(spline(t - tau), model.delay.derivative)
+                if model.delay.gain is not None:
+                    p = p + model.delay.gain * delayed
+            Ps.append(np.column_stack([delayed if isinstance(c.term, DelayedSignal) else base[c.name] for c in cols]))
+            ps.append(p)
+        return Regression(
+            P=np.vstack(Ps),
+            p=np.concatenate(ps),
+            names=tuple(c.name for c in cols),
+            groups=tuple(c.group for c in cols),
+            penalties=np.array([c.penalty for c in cols]),
+            experiments=tuple(e.name for e in self.experiments),
+        )

@@ -172,6 +172,39 @@ class Derivative(Term):
         return base + "^{" + "\\prime" * self.order + "}" if self.order <= 3 else f"{base}^{{({self.order})}}"
 
 
+class DelayedSignal(Term):
+    r"""The delayed feedback signal :math:`x^{(q)}(t-\tau)` (exact delay, unknown gain).
+
+    Its samples come in the states under :attr:`symbol`, already shifted by the delay being
+    tried; the column is the algebraic transform of :math:`x(t-\tau)` with derivative order
+    :math:`q`.
+    """
+
+    def __init__(self, coordinate: str, derivative: int = 0):
+        self.coordinate = coordinate
+        self.derivative = int(derivative)
+        self.name = f"{coordinate}{chr(39) * self.derivative}(t-tau)"
+        self.meaning = "delayed feedback"
+
+    @property
+    def symbol(self) -> str:
+        return f"{self.coordinate}(t-tau)"
+
+    @property
+    def symbols(self) -> frozenset[str]:
+        return frozenset([self.symbol])
+
+    @property
+    def needs_velocity(self) -> bool:
+        return False
+
+    def evaluate(self, states: States) -> np.ndarray:
+        raise CvxidError("the delayed signal is simulated by the delay-differential integrator")
+
+    def regression_signal(self, states: States) -> tuple[np.ndarray, int]:
+        return states[self.symbol], self.derivative
+
+
 class Sign(Term):
     """Coulomb friction :math:`\\operatorname{sign}(\\dot x)`."""
 
