@@ -28,6 +28,8 @@ from .errors import CvxidError
 from .terms import Term, velocity_symbol
 
 HISTORIES = ("zero", "initial")
+MAX_SUBSTEPS = 16
+"""Most integration steps per sample that a short delay may ask for."""
 DIVERGED = 1e8
 
 
@@ -43,7 +45,7 @@ class System:
     coefficients: np.ndarray  # (k,) or (B, k)
     mass: float | np.ndarray = 1.0
     coordinate: str = "x"
-    gain: float = 0.0
+    gain: float | np.ndarray = 0.0
     tau: float | np.ndarray = 0.0
     derivative: int = 0
     history: str = "zero"
@@ -62,9 +64,10 @@ class System:
         for t, c in zip(self.terms, coefs):
             lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g} {t.name}"
         rhs = "f"
-        if self.gain:
+        gain = float(np.ravel(self.gain)[0])
+        if gain:
             s = self.coordinate + "'" * self.derivative
-            rhs += f" + {self.gain:.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
+            rhs += f" + {gain:.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
         return f"{lhs} = {rhs}"
 
 
@@ -85,15 +88,18 @@ def simulate(
     n = t.size
     dt = float((t[-1] - t[0]) / (n - 1))
     coefs = np.atleast_2d(np.asarray(system.coefficients, dtype=float))
-    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(x0), np.size(v0))
+    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain), np.size(x0), np.size(v0))
     coefs = np.broadcast_to(coefs, (batch, coefs.shape[1])).T.copy()  # (k, B)
     mass = np.broadcast_to(np.asarray(system.mass, float), (batch,))
     tau = np.broadcast_to(np.asarray(system.tau, float), (batch,))
-    delayed = system.gain != 0 and np.any(tau > 0)
+    gain = np.broadcast_to(np.asarray(system.gain, float), (batch,))
+    delayed = bool(np.any(gain != 0) and np.any(tau > 0))
     substeps = int(substeps)
-    if delayed:
-        substeps = max(substeps, int(np.ceil(dt / tau.min() - 1e-12)))
+    resolvable = tau[tau >= dt / MAX_SUBSTEPS]
+    if delayed and resolvable.size:
+        substeps = max(substeps, int(np.ceil(dt / resolvable.min() - 1e-12)))
     h = dt / substeps
+    instant = tau < h  # delays shorter than a step act on the current state (error O(tau))
     steps = (n - 1) * substeps
     fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
     if callable(force):
@@ -111,7 +117,7 @@ def simulate(
     X[0], V[0] = x0, v0
     cols = np.arange(batch)
     pos, vel = system.coordinate, velocity_symbol(system.coordinate)
-    gain, q = system.gain, system.derivative
+    q = system.derivative
     y_hist = X if q == 0 else V
     d_hist = V if q == 0 else A
 
@@ -134,14 +140,14 @@ def simulate(
         i = k + off
         # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
         early = (i < 0) | ((i == 0) & (w0 == 1.0) & (c == 1.0))
-        j = np.maximum(i, 0)
+        j = np.clip(i, 0, steps - 1)  # (delays shorter than a step never use the value)
         out = w0 * y_hist[j, cols] + w1 * d_hist[j, cols] + w2 * y_hist[j + 1, cols] + w3 * d_hist[j + 1, cols]
         return np.where(early, fill, out)
 
     def accel(step2, x, v, k, c):
         rhs = f[step2].copy()
         if delayed:
-            rhs += gain * lagged(k, c)
+            rhs += gain * np.where(instant, x if q == 0 else v, lagged(k, c))
         states = {pos: x, vel: v}
         for term, coef in zip(system.terms, coefs):
             rhs -= coef * term.evaluate(states)
@@ -166,7 +172,7 @@ def simulate(
                 f"{DIVERGED:g}): the model is unstable under this input; check its coefficients"
             )
     xs, vs = X[::substeps], V[::substeps]
-    if batch == 1 and np.ndim(system.coefficients) == 1 and np.ndim(system.tau) == 0:
+    if batch == 1 and np.ndim(system.coefficients) == 1 and np.ndim(system.tau) == 0 and np.ndim(system.gain) == 0:
         return xs[:, 0], vs[:, 0]
     return xs, vs
 
