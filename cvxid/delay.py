@@ -51,6 +51,7 @@ class DelayedFeedback:
     method: str = "taylor"
     tau_max: float = 0.5
     tau_min: float = 0.0
+    history: str = "zero"
 
     def __post_init__(self):
         if self.derivative not in (0, 1):
@@ -73,6 +74,8 @@ class DelayedFeedback:
             raise CvxidError(
                 f"[model.delay] taylor_order must be at least 1, got {self.taylor_order}"
             )
+        if self.history not in ("zero", "initial"):
+            raise CvxidError(f"[model.delay] history must be 'zero' or 'initial', got '{self.history}'")
         if not 0 <= self.tau_min < self.tau_max:
             raise CvxidError(
                 f"[model.delay] needs 0 <= tau_min < tau_max, got {self.tau_min} and {self.tau_max}"

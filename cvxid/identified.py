@@ -46,11 +46,12 @@ class IdentifiedModel:
     def physical(self) -> dict[str, float]:
         return self.spec.physical(self.coefficients, self.tau)
 
-    def system(self, history: str = "zero") -> System:
+    def system(self, history: str | None = None) -> System:
         """The identified system, ready to simulate (terms off the support dropped)."""
         mass, terms, tau, gain = self.spec.physical_terms(self.coefficients, self.tau)
         lib = [t for t in self.spec.library if terms[t.name] != 0.0]
         delay = self.spec.delay
+        history = history or (delay.history if delay else "zero")
         return System(
             terms=tuple(lib),
             coefficients=np.array([terms[t.name] for t in lib]),
@@ -72,7 +73,7 @@ class IdentifiedModel:
         parts = [f"{c:+.6g} {n}" for n, c in self.coefficients.items() if c != 0.0]
         return " ".join(parts) + f" = {self.spec.input}"
 
-    def simulate(self, experiment: Experiment, x0: float, v0: float, history: str = "zero"):
+    def simulate(self, experiment: Experiment, x0: float, v0: float, history: str | None = None):
         """Free-run simulation under the experiment's measured input."""
         return simulate(self.system(history), experiment.time, experiment.input(self.spec.input), x0, v0)
 

@@ -50,19 +50,76 @@ class Refinement:
         return value - z * se, value + z * se
 
 
+STARTS = 5
+"""Delays tried as starting points (the simulation error has local minima in tau)."""
+
+
+def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3) -> Refinement:
+    """Output-error polish with several starting delays: each start is fitted on a coarse
+    simulation step, the best is refined at the sample step."""
+    start = time.perf_counter()
+    delay = model.spec.delay
+    taus = [model.tau] if model.tau is not None else [model.physical.get("tau")]
+    if delay is not None:
+        taus += list(np.linspace(delay.tau_min, delay.tau_max, STARTS + 2)[1:-1])
+    taus = [t for t in taus if t is not None] or [None]
+    best = None
+    for tau in taus:
+        trial = model if tau is None else _with_tau(model, tau)
+        try:
+            fit = output_error(trial, experiment, step=coarse_step, max_iterations=200)
+        except CvxidError:
+            continue
+        if best is None or fit.rms_after < best.rms_after:
+            best = fit
+    if best is None:
+        raise CvxidError("the output-error polish failed from every starting delay (diverging simulations)")
+    final = output_error(best.model, experiment, best.x0, best.v0, step=experiment.dt, max_iterations=50)
+    return Refinement(final.model, final.parameters, final.standard_errors, output_rms(model, experiment),
+                      final.rms_after, final.x0, final.v0, final.iterations, time.perf_counter() - start)
+
+
+def output_rms(model: IdentifiedModel, experiment: Experiment) -> float:
+    """Root-mean-square free-run simulation error of ``model`` on ``experiment`` (inf if the
+    simulation diverges)."""
+    y = experiment.output(model.spec.coordinate)
+    x0, v0 = initial_state(experiment.time, y)
+    try:
+        x, _ = model.simulate(experiment, x0, v0)
+    except SimulationDiverged:
+        return float("inf")
+    return float(np.sqrt(np.mean((x - y) ** 2)))
+
+
+def initial_state(t: np.ndarray, y: np.ndarray, samples: int = 20) -> tuple[float, float]:
+    """Position and velocity at the first sample from a local quadratic fit."""
+    n = min(samples, len(t))
+    c = np.polyfit(t[:n] - t[0], y[:n], 2)
+    return float(c[2]), float(c[1])
+
+
+def _with_tau(model: IdentifiedModel, tau: float) -> IdentifiedModel:
+    system = model.system()
+    params = {model.spec.parameter_name(t.name): c for t, c in zip(system.terms, np.atleast_1d(system.coefficients))}
+    params["m"] = float(system.mass)
+    params["tau"] = float(tau)
+    return _updated(model, system, params)
+
+
 def output_error(
     model: IdentifiedModel,
     experiment: Experiment,
     x0: float | None = None,
     v0: float | None = None,
     step: float = 1e-3,
-    history: str = "zero",
     max_iterations: int = 30,
 ) -> Refinement:
-    """Polish ``model`` on ``experiment`` by output error (see the module docstring)."""
+    """Polish ``model`` on ``experiment`` by output error from its own delay (see the
+    module docstring; :func:`polish` adds several starting delays)."""
     start = time.perf_counter()
     spec = model.spec
-    system = model.system(history)
+    system = model.system()
+    history = system.history
     coord = spec.coordinate
     stride = max(1, int(round(step / experiment.dt)))
     t = experiment.time[::stride]
@@ -70,10 +127,9 @@ def output_error(
         raise CvxidError(f"experiment '{experiment.name}' is too short for the output-error polish")
     y = experiment.output(coord)[::stride]
     u = experiment.input(spec.input)[::stride]
-    if x0 is None:
-        x0 = float(np.polyval(np.polyfit(t[:20] - t[0], y[:20], 2), 0.0))
-    if v0 is None:
-        v0 = float(np.polyfit(t[:20] - t[0], y[:20], 2)[1])
+    guess = initial_state(t, y)
+    x0 = guess[0] if x0 is None else x0
+    v0 = guess[1] if v0 is None else v0
     has_delay = spec.delay is not None and system.gain != 0
     estimate_gain = has_delay and spec.delay.gain is None
     names = ["m"] if spec.inertia else []
@@ -164,6 +220,8 @@ def _updated(model: IdentifiedModel, system: System, params: dict) -> Identified
     if spec.inertia:
         coefs[spec.inertia_term.name] = params["m"]
     tau = params.get("tau", model.tau)
+    if "gain" in params:
+        coefs[spec.delayed_term.name] = -params["gain"]
     if spec.delay is not None and not spec.delay.exact:
         for t in spec.delay.taylor_terms():
             if t.name in coefs:

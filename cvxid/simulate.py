@@ -25,7 +25,9 @@ import numpy as np
 from scipy.interpolate import CubicSpline
 
 from .errors import CvxidError
-from .terms import Term, velocity_symbol
+from numba import njit
+
+from .terms import AbsProduct, Constant, Monomial, Sign, Term, velocity_symbol
 
 HISTORIES = ("zero", "initial")
 MAX_SUBSTEPS = 16
@@ -133,6 +135,17 @@ def simulate(
         weights = (2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
         stages[c] = (off, weights)
     fill = X[0] if (system.history == "initial" and q == 0) else np.zeros(batch)
+    codes = _term_codes(system)
+    if codes is not None:
+        offs = np.array([stages[c][0] for c in (0.0, 0.5, 1.0)])
+        ws = np.array([np.array(stages[c][1]) for c in (0.0, 0.5, 1.0)])
+        xs, vs, failed = _rk4_kernel(
+            np.ascontiguousarray(f), mass.copy(), coefs, *codes, gain.copy(), q, offs, ws,
+            instant.copy(), fill.copy(), delayed, X[0].copy(), V[0].copy(), h, steps, substeps,
+        )
+        if failed >= 0:
+            _diverged(t[0] + failed * h)
+        return _shape(system, xs, vs)
 
     def lagged(k, c):
         """x^(q)(t_k + c h - tau) from the buffer (or the history before t = 0)."""
@@ -167,14 +180,106 @@ def simulate(
         v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
         X[k + 1], V[k + 1] = x, v
         if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
-            raise SimulationDiverged(
-                f"the simulation diverged at t = {t[0] + (k + 1) * h:.4g} s (|x| or |x'| > "
-                f"{DIVERGED:g}): the model is unstable under this input; check its coefficients"
-            )
-    xs, vs = X[::substeps], V[::substeps]
-    if batch == 1 and np.ndim(system.coefficients) == 1 and np.ndim(system.tau) == 0 and np.ndim(system.gain) == 0:
+            _diverged(t[0] + (k + 1) * h)
+    return _shape(system, X[::substeps], V[::substeps])
+
+
+def _diverged(when: float):
+    raise SimulationDiverged(
+        f"the simulation diverged at t = {when:.4g} s (|x| or |x'| > {DIVERGED:g}): the model "
+        "is unstable under this input; check its coefficients"
+    )
+
+
+def _shape(system: System, xs: np.ndarray, vs: np.ndarray):
+    single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.mass))
+    if xs.shape[1] == 1 and np.ndim(system.coefficients) == 1 and single:
         return xs[:, 0], vs[:, 0]
     return xs, vs
+
+
+def _term_codes(system: System):
+    """(kinds, powers of x, powers of x') of terms the compiled kernel knows, else None."""
+    pos, vel = system.coordinate, velocity_symbol(system.coordinate)
+    kinds, px, pv = [], [], []
+    for term in system.terms:
+        if isinstance(term, Monomial) and set(term.factors) <= {pos, vel}:
+            kinds.append(0)
+            px.append(term.factors.get(pos, 0))
+            pv.append(term.factors.get(vel, 0))
+        elif isinstance(term, Constant):
+            kinds.append(0)
+            px.append(0)
+            pv.append(0)
+        elif isinstance(term, (Sign, AbsProduct)) and term.coordinate == pos:
+            kinds.append(1 if isinstance(term, Sign) else 2)
+            px.append(0)
+            pv.append(0)
+        else:
+            return None  # a user's own term: the Python integrator runs it
+    return np.array(kinds, np.int64), np.array(px, np.int64), np.array(pv, np.int64)
+
+
+@njit(cache=True)
+def _accel_kernel(b, x, v, fk, k, ci, mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill,
+                  delayed, X, V, A, steps):
+    rhs = fk
+    if delayed and gain[b] != 0.0:
+        if instant[b]:
+            d = x if q == 0 else v
+        else:
+            i = k + offs[ci, b]
+            w0, w1, w2, w3 = ws[ci, 0, b], ws[ci, 1, b], ws[ci, 2, b], ws[ci, 3, b]
+            if i < 0 or (i == 0 and w0 == 1.0 and ci == 2):
+                d = fill[b]
+            else:
+                j = min(i, steps - 1)
+                if q == 0:
+                    d = w0 * X[j, b] + w1 * V[j, b] + w2 * X[j + 1, b] + w3 * V[j + 1, b]
+                else:
+                    d = w0 * V[j, b] + w1 * A[j, b] + w2 * V[j + 1, b] + w3 * A[j + 1, b]
+        rhs += gain[b] * d
+    for m in range(kinds.size):
+        if kinds[m] == 0:
+            val = x ** px[m] * v ** pv[m]
+        elif kinds[m] == 1:
+            val = 1.0 if v > 0 else (-1.0 if v < 0 else 0.0)
+        else:
+            val = v * abs(v)
+        rhs -= coefs[m, b] * val
+    return rhs / mass[b]
+
+
+@njit(cache=True)
+def _rk4_kernel(f, mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill, delayed, x0, v0, h,
+                steps, stride):
+    """The same RK4 with history buffer as the Python loop, compiled (one system at a time)."""
+    batch = x0.size
+    X = np.zeros((steps + 1, batch))
+    V = np.zeros((steps + 1, batch))
+    A = np.zeros((steps + 1, batch))
+    failed = -1
+    args = (mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill, delayed)
+    for b in range(batch):
+        x, v = x0[b], v0[b]
+        X[0, b], V[0, b] = x, v
+        for k in range(steps):
+            a1 = _accel_kernel(b, x, v, f[2 * k, b], k, 0, *args, X, V, A, steps)
+            A[k, b] = a1
+            x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
+            a2 = _accel_kernel(b, x2, v2, f[2 * k + 1, b], k, 1, *args, X, V, A, steps)
+            x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
+            a3 = _accel_kernel(b, x3, v3, f[2 * k + 1, b], k, 1, *args, X, V, A, steps)
+            x4, v4 = x + h * v3, v + h * a3
+            a4 = _accel_kernel(b, x4, v4, f[2 * k + 2, b], k, 2, *args, X, V, A, steps)
+            x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
+            v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+            X[k + 1, b], V[k + 1, b] = x, v
+            if not (abs(x) < 1e8 and abs(v) < 1e8):
+                if failed < 0 or k + 1 < failed:
+                    failed = k + 1
+                break
+    return X[::stride].copy(), V[::stride].copy(), failed
 
 
 def terms_of(names: Sequence[Term]) -> tuple[Term, ...]:
