@@ -22,7 +22,10 @@ from .identified import IdentifiedModel
 from .path import Path
 from .problem import Problem
 from .problems import ProblemSpec, load_problem
-from .regression import Regression
+from .estimate import ESTIMATORS
+from .profile import profile_delay
+from .refine import Refinement, polish
+from .regression import DelayFamily
 from .selection import OrderSearch, order_search
 
 RESULT_SCHEMA = 1
@@ -44,6 +47,8 @@ class RunResult:
     warnings: list[str] = field(default_factory=list)
     bootstrap: Bootstrap | None = None
     order_search: OrderSearch | None = None
+    tau: dict | None = None
+    refinement: Refinement | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -70,6 +75,14 @@ class RunResult:
             "solver": self.problem.solver,
             "seconds": self.seconds,
             "warnings": self.warnings,
+            "tau": self.tau,
+            "refinement": None if self.refinement is None else {
+                "method": "output_error",
+                "rms_before": self.refinement.rms_before,
+                "rms_after": self.refinement.rms_after,
+                "standard_errors": self.refinement.standard_errors,
+                "seconds": self.refinement.seconds,
+            },
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
                 "terms": _records(self.bootstrap.summary()),
@@ -93,6 +106,11 @@ class RunResult:
             f"  lambda = {self.model.lam:.3g} ({self.spec.fit.estimator}, solver {self.problem.solver}, "
             f"velocity {self.spec.fit.velocity})",
             f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})",
+            *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
+               + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
+                  if self.tau["interval"] else ")")] if self.tau else []),
+            *([f"  output-error polish: simulation RMS {self.refinement.rms_before:.4g} -> "
+               f"{self.refinement.rms_after:.4g} in {self.refinement.seconds:.1f} s"] if self.refinement else []),
             "",
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
@@ -113,56 +131,97 @@ def _records(frame: pd.DataFrame) -> dict:
 
 
 def run(spec: ProblemSpec | str | FilePath) -> RunResult:
-    """Identify the model of a problem spec (a :class:`ProblemSpec` or a path to one)."""
+    """Identify the model of a problem spec (a :class:`ProblemSpec` or a path to one).
+
+    Steps: load or simulate the experiments; for an exact delay, profile the delay on the
+    whole library; (optionally) search the library order; sweep lambda and select on the
+    test experiment; (optionally) bootstrap; for an exact delay, profile the delay again on
+    the selected support; (optionally) polish by output error.
+    """
     if not isinstance(spec, ProblemSpec):
         spec = load_problem(spec)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CvxidWarning)
-        train = spec.experiment("train")
-        test = spec.experiment("test") if "test" in spec.data else None
-        fit = spec.fit
-        velocity = "measured" if fit.velocity not in ("observer", "savgol", "spline") else fit.velocity
-        model_spec = spec.model
-        search = None
-        if fit.orders:
-            model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
-        regression = Regression.build(model_spec, train, velocity)
-        validation = Regression.build(model_spec, test, velocity) if test else None
-        if fit.orders:
-            boot = fit.bootstrap
-            search = order_search(
-                spec, fit.orders, boot.samples if boot else None, boot.fraction if boot else 0.5,
-                boot.seed if boot else 0, boot.n_jobs if boot else 1, regression, validation,
-            )
-            model_spec = model_spec.with_library(spec.library(search.best_order))
-            regression = regression.subset(model_spec.column_names)
-            validation = validation.subset(model_spec.column_names)
-        problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
-        path = Path.compute(
-            problem,
-            fit.lambdas,
-            validation.residual if validation else None,
-            estimator=fit.estimator,
-            debias=fit.debias,
+        result = _identify(spec)
+    result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+    result.seconds = time.perf_counter() - start
+    return result
+
+
+def _identify(spec: ProblemSpec) -> RunResult:
+    train = spec.experiment("train")
+    test = spec.experiment("test") if "test" in spec.data else None
+    fit = spec.fit
+    velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
+    model_spec = spec.model
+    if fit.orders:
+        model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
+    exact = model_spec.delay is not None and model_spec.delay.exact
+    family = DelayFamily(model_spec, train, velocity)
+    test_family = DelayFamily(model_spec, test, velocity) if test else None
+    tau = profile_delay(family, nonnegative=model_spec.nonnegative).estimate if exact else None
+    regression = family.at(tau)
+    validation = test_family.at(tau) if test else None
+    search = None
+    if fit.orders:
+        boot = fit.bootstrap
+        search = order_search(
+            spec, fit.orders, boot.samples if boot else None, boot.fraction if boot else 0.5,
+            boot.seed if boot else 0, boot.n_jobs if boot else 1, regression, validation,
         )
-        best = path.best(fit.selection) if validation else path.fits[-1]
-        keep = best.support | (problem.penalties == 0)
-        coefs = {n: (float(c) if s else 0.0) for n, c, s in zip(problem.names, best.coefficients, keep)}
-        ensemble = None
-        if fit.bootstrap:
-            ensemble = (search.ensembles[search.best_order] if search else bootstrap(
-                regression, fit.lambdas, validation.residual if validation else None, fit.bootstrap,
-                model_spec.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection,
-            ))
-            coefs = {n: float(v) for n, v in ensemble.mean.items()}  # the paper's estimate (eq. 18)
-        model = IdentifiedModel(model_spec, coefs, best.lam)
-    messages = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+        model_spec = model_spec.with_library(spec.library(search.best_order))
+        regression = regression.subset(model_spec.column_names)
+        validation = validation.subset(model_spec.column_names)
+        family = DelayFamily(model_spec, train, velocity)
+    problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
+    path = Path.compute(
+        problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator, debias=fit.debias
+    )
+    best = path.best(fit.selection) if validation else path.fits[-1]
+    keep = best.support | (problem.penalties == 0)
+    coefs = dict(zip(problem.names, np.where(keep, best.coefficients, 0.0)))
+    ensemble = None
+    if fit.bootstrap:
+        ensemble = search.ensembles[search.best_order] if search else bootstrap(
+            regression, fit.lambdas, validation.residual if validation else None, fit.bootstrap,
+            model_spec.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection,
+        )
+        coefs = dict(ensemble.mean)  # the paper's estimate (its eq. 18)
+        keep = np.array([coefs[n] != 0 for n in problem.names])
+    tau_info = None
+    if exact:
+        profile = profile_delay(family, support=keep, nonnegative=model_spec.nonnegative)
+        tau = profile.estimate
+        refit = Problem.from_regression(family.at(tau), model_spec.nonnegative, fit.solver).refit(keep)
+        coefs = dict(zip(problem.names, np.where(keep, refit.coefficients, 0.0)))
+        validation = test_family.at(tau).subset(model_spec.column_names) if test else None
+        tau_info = profile.as_dict()
+    model = IdentifiedModel(model_spec, {n: float(c) for n, c in coefs.items()}, best.lam, tau=tau)
     if ensemble is not None:
-        ensemble.physical = pd.DataFrame([model_spec.physical(dict(r)) for _, r in ensemble.coefficients.iterrows()])
-    test_mse = validation.mse(np.array(list(coefs.values()))) if validation else float("nan")
-    test_nmse = validation.nmse(np.array(list(coefs.values()))) if validation else float("nan")
+        ensemble.physical = pd.DataFrame(
+            [model_spec.physical(dict(r), tau) for _, r in ensemble.coefficients.iterrows()]
+        )
+    if model_spec.delay is not None and not exact:
+        interval = None
+        if ensemble is not None:
+            taus = ensemble.physical["tau"]
+            interval = [float(taus.quantile(0.025)), float(taus.quantile(0.975))]
+        tau_info = {"estimate": model.physical["tau"], "interval": interval, "method": "taylor"}
+    refinement = None
+    if fit.refine == "output_error":
+        refinement = polish(model, train)
+        model = refinement.model
+        if model_spec.delay is not None:
+            tau_info = {
+                "estimate": refinement.parameters["tau"],
+                "interval": list(refinement.interval("tau")),
+                "method": "output_error",
+            }
+    vector = np.array([model.coefficients[n] for n in problem.names])
     return RunResult(
-        spec, model, path, problem, train, test, test_mse, test_nmse, time.perf_counter() - start, messages,
-        ensemble, search,
+        spec, model, path, problem, train, test,
+        validation.mse(vector) if validation else float("nan"),
+        validation.nmse(vector) if validation else float("nan"),
+        0.0, [], ensemble, search, tau_info, refinement,
     )

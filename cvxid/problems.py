@@ -16,7 +16,7 @@ import numpy as np
 
 from .bootstrap import BootstrapSettings
 from .data import Experiment, load
-from .delay import DelayedFeedback
+from .delay import METHODS, DelayedFeedback
 from .errors import CvxidError
 from .estimate import ESTIMATORS
 from .library import Library, resolve_term
@@ -112,6 +112,7 @@ class FitSettings:
     selection: str = "min"
     bootstrap: "BootstrapSettings | None" = None
     orders: tuple[int, ...] = ()
+    refine: str | None = None
 
 
 @dataclass(frozen=True)
@@ -153,7 +154,8 @@ TOP_KEYS = {"name", "description", "truth", "data", "model", "fit"}
 DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
-FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs"}
+FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
+            "refine"}
 
 
 def load_problem(path) -> ProblemSpec:
@@ -205,7 +207,7 @@ def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
     library = library + [resolve_term(e, (coord,)) for e in extra]
     delay = None
     if "delay" in table:
-        d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method"})
+        d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method", "tau_min", "tau_max", "history"})
         signal = _string(d, "signal", "model.delay", coord)
         if signal.rstrip("'") != coord or len(signal) - len(coord) > 1:
             raise CvxidError(f"spec: [model.delay] signal must be '{coord}' or \"{coord}'\", got '{signal}'")
@@ -214,8 +216,13 @@ def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
             derivative=len(signal) - len(coord),
             gain=_number(d, "gain", "model.delay") if "gain" in d else None,
             taylor_order=_number(d, "taylor_order", "model.delay", 3, positive=True, integer=True),
-            method=_string(d, "method", "model.delay", "taylor"),
+            method=_string(d, "method", "model.delay", "taylor", choices=METHODS),
+            tau_min=_number(d, "tau_min", "model.delay", 0.0),
+            tau_max=_number(d, "tau_max", "model.delay", 0.5, positive=True),
+            history=_string(d, "history", "model.delay", "zero", choices=HISTORIES),
         )
+        if delay.exact and "taylor_order" in d:
+            raise CvxidError("spec: [model.delay] taylor_order has no meaning with method = 'exact'; remove it")
     cons = _table(table, "constraints", where, {"nonnegative"})
     names_t = table.get("names", {})
     if not isinstance(names_t, Mapping):
@@ -267,6 +274,7 @@ def _fit(table: Table) -> FitSettings:
         selection=_string(table, "selection", where, "min", choices=SELECTION_RULES),
         bootstrap=_bootstrap(table),
         orders=_orders(table),
+        refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
     )
 
 

@@ -1,0 +1,108 @@
+"""Delays: Taylor map, exact delay with profile search, output-error polish."""
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cvxid import CvxidError
+from cvxid.delay import DelayedFeedback
+from cvxid.identified import IdentifiedModel
+from cvxid.library import Library
+from cvxid.model import ModelSpec
+from cvxid.problem import Problem
+from cvxid.profile import effective_rows, profile_delay
+from cvxid.refine import polish
+from cvxid.regression import DelayFamily
+from cvxid.simulate import System, simulate
+from cvxid.data import Experiment
+from cvxid.terms import parse_term
+
+TERMS = ("x'", "x", "x^3")
+TRUE = {"m": 1.0, "x'": 0.5, "x": 4.0, "x^3": 1.0, "tau": 0.15, "gain": 1.5}
+
+
+def record(seed, noise, x0=0.5, duration=6.0, dt=1e-3, history="zero"):
+    t = np.arange(int(duration / dt) + 1) * dt
+    force = lambda s: 3 * np.sin(2.1 * s) + 2 * np.sin(5.3 * s + 1) + 1.5 * np.sin(9.7 * s)
+    system = System(tuple(parse_term(n) for n in TERMS), np.array([TRUE[n] for n in TERMS]), 1.0, "x",
+                    TRUE["gain"], TRUE["tau"], 0, history)
+    x, v = simulate(system, t, force, x0, 0.0)
+    rng = np.random.default_rng(seed)
+    return Experiment(t, {"x": x + noise * rng.standard_normal(t.size)}, {"f": force(t)}, "e", {"x": v})
+
+
+def model(method="exact", gain=TRUE["gain"], **kw):
+    delay = DelayedFeedback("x", 0, gain, method=method, tau_max=0.4, **kw)
+    return ModelSpec(Library(parse_term(n) for n in TERMS), delay=delay, nonnegative=("x''",))
+
+
+def test_taylor_map_inverts_the_coefficients():
+    spec = ModelSpec(Library(parse_term(n) for n in TERMS), delay=DelayedFeedback("x", 0, 2.0, 3))
+    tau = 0.2
+    coefs = {"x''": 1 - 2 * tau**2 / 2, "x'": 0.5 + 2 * tau, "x": 4 - 2, "x^3": 1.0, "x'''": 2 * tau**3 / 6}
+    phys = spec.physical(coefs)
+    assert phys["tau"] == pytest.approx(tau, rel=1e-9)
+    assert phys["m"] == pytest.approx(1.0) and phys["x'"] == pytest.approx(0.5) and phys["x"] == pytest.approx(4.0)
+
+
+def test_taylor_tau_fitted_from_several_coefficients():
+    d = DelayedFeedback("x", 0, 2.0, 5)
+    tau = 0.17
+    pure = {j: d.contribution(j, tau) for j in (3, 4, 5)}
+    assert d.estimate_tau(pure) == pytest.approx(tau, rel=1e-8)
+
+
+@pytest.mark.parametrize("history", ["zero", "initial"])
+def test_exact_delay_profile_recovers_tau_without_noise(history):
+    exp = record(0, 0.0, history=history)
+    spec = replace(model(), delay=replace(model().delay, history=history))
+    fam = DelayFamily(spec, exp, "measured")
+    prof = profile_delay(fam, nonnegative=spec.nonnegative)
+    assert prof.estimate == pytest.approx(TRUE["tau"], abs=2e-4)
+    assert prof.interval[0] <= prof.estimate <= prof.interval[1]
+    fit = Problem.from_regression(fam.at(prof.estimate)).refit(np.ones(4, bool))
+    phys = spec.physical(dict(zip(fam.at(prof.estimate).names, fit.coefficients)), prof.estimate)
+    for name in ("m", "x'", "x", "x^3"):
+        assert phys[name] == pytest.approx(TRUE[name], rel=2e-3), name
+
+
+def test_unknown_gain_is_estimated_with_the_delay():
+    exp = record(1, 0.0)
+    spec = model(gain=None)
+    assert "x(t-tau)" in spec.column_names
+    fam = DelayFamily(spec, exp, "measured")
+    prof = profile_delay(fam, nonnegative=spec.nonnegative)
+    reg = fam.at(prof.estimate)
+    fit = Problem.from_regression(reg).refit(np.ones(reg.shape[1], bool))
+    phys = spec.physical(dict(zip(reg.names, fit.coefficients)), prof.estimate)
+    assert phys["gain"] == pytest.approx(TRUE["gain"], rel=0.02)
+    assert phys["tau"] == pytest.approx(TRUE["tau"], rel=0.02)
+
+
+def test_record_shorter_than_the_delay_is_refused():
+    with pytest.raises(CvxidError, match="too short for delays up to tau_max"):
+        DelayFamily(model(), record(0, 0.0, duration=0.5), "measured")
+
+
+def test_effective_rows_of_white_and_coloured_noise(rng):
+    white = rng.standard_normal(4000)
+    assert effective_rows(white) > 2000
+    coloured = np.convolve(white, np.ones(200) / 200, mode="same")
+    assert effective_rows(coloured) < 200
+
+
+@pytest.mark.slow
+def test_output_error_polish_reaches_the_noise_floor():
+    # start from a deliberately wrong model: 20 % off everywhere and tau = 0.05
+    exp = record(3, 0.01)
+    spec = model()
+    wrong = {"x''": 1.2, "x'": 0.4, "x": 3.2, "x^3": 1.2}
+    refinement = polish(IdentifiedModel(spec, wrong, tau=0.05), exp)
+    assert refinement.rms_after < 0.0105  # the noise is 0.01
+    assert refinement.rms_after < refinement.rms_before / 5
+    phys = refinement.model.physical
+    for name in ("m", "x'", "x", "x^3", "tau"):
+        assert phys[name] == pytest.approx(TRUE[name], rel=0.02), name
+    lo, hi = refinement.interval("tau")
+    assert lo <= TRUE["tau"] <= hi
