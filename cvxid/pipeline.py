@@ -24,7 +24,7 @@ from .problem import Problem
 from .problems import ProblemSpec, load_problem
 from .estimate import ESTIMATORS
 from .profile import profile_delay
-from .refine import Refinement, polish
+from .polish import PolishResult, polish
 from .regression import DelayFamily
 from .selection import OrderSearch, order_search
 
@@ -48,7 +48,7 @@ class RunResult:
     bootstrap: Bootstrap | None = None
     order_search: OrderSearch | None = None
     tau: dict | None = None
-    refinement: Refinement | None = None
+    polish: PolishResult | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -76,12 +76,12 @@ class RunResult:
             "seconds": self.seconds,
             "warnings": self.warnings,
             "tau": self.tau,
-            "refinement": None if self.refinement is None else {
+            "polish": None if self.polish is None else {
                 "method": "output_error",
-                "rms_before": self.refinement.rms_before,
-                "rms_after": self.refinement.rms_after,
-                "standard_errors": self.refinement.standard_errors,
-                "seconds": self.refinement.seconds,
+                "rms_before": self.polish.rms_before,
+                "rms_after": self.polish.rms_after,
+                "standard_errors": self.polish.standard_errors,
+                "seconds": self.polish.seconds,
             },
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
@@ -109,8 +109,8 @@ class RunResult:
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
                   if self.tau["interval"] else ")")] if self.tau else []),
-            *([f"  output-error polish: simulation RMS {self.refinement.rms_before:.4g} -> "
-               f"{self.refinement.rms_after:.4g} in {self.refinement.seconds:.1f} s"] if self.refinement else []),
+            *([f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
+               f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s"] if self.polish else []),
             "",
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
@@ -208,14 +208,14 @@ def _identify(spec: ProblemSpec) -> RunResult:
             taus = ensemble.physical["tau"]
             interval = [float(taus.quantile(0.025)), float(taus.quantile(0.975))]
         tau_info = {"estimate": model.physical["tau"], "interval": interval, "method": "taylor"}
-    refinement = None
+    polished = None
     if fit.refine == "output_error":
-        refinement = polish(model, train)
-        model = refinement.model
+        polished = polish(model, train)
+        model = polished.model
         if model_spec.delay is not None:
             tau_info = {
-                "estimate": refinement.parameters["tau"],
-                "interval": list(refinement.interval("tau")),
+                "estimate": polished.parameters["tau"],
+                "interval": list(polished.interval("tau")),
                 "method": "output_error",
             }
     vector = np.array([model.coefficients[n] for n in problem.names])
@@ -223,5 +223,5 @@ def _identify(spec: ProblemSpec) -> RunResult:
         spec, model, path, problem, train, test,
         validation.mse(vector) if validation else float("nan"),
         validation.nmse(vector) if validation else float("nan"),
-        0.0, [], ensemble, search, tau_info, refinement,
+        0.0, [], ensemble, search, tau_info, polished,
     )

@@ -55,8 +55,6 @@ class System:
     def __post_init__(self):
         if self.history not in HISTORIES:
             raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{self.history}'")
-        if np.any(np.asarray(self.mass) <= 0):
-            raise CvxidError(f"the mass must be positive to simulate, got {self.mass}")
         if np.any(np.asarray(self.tau) < 0):
             raise CvxidError(f"the delay must be >= 0, got {self.tau}")
 
@@ -86,6 +84,11 @@ def simulate(
     ``force`` is a function of time or samples on ``time`` (then interpolated by a cubic
     spline between samples).  Returns arrays of shape ``(n,)``, or ``(n, B)`` for a batch.
     """
+    if np.any(np.asarray(system.mass) <= 0):
+        raise SimulationDiverged(
+            f"the model's mass is {system.mass} (not positive): it cannot be simulated; "
+            "constrain the inertia to be positive or use richer data"
+        )
     t = np.asarray(time, dtype=float)
     n = t.size
     dt = float((t[-1] - t[0]) / (n - 1))

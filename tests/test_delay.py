@@ -12,7 +12,7 @@ from cvxid.library import Library
 from cvxid.model import ModelSpec
 from cvxid.problem import Problem
 from cvxid.profile import effective_rows, profile_delay
-from cvxid.refine import polish
+from cvxid.polish import polish
 from cvxid.regression import DelayFamily
 from cvxid.simulate import System, simulate
 from cvxid.data import Experiment

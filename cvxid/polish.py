@@ -32,7 +32,7 @@ from .simulate import SimulationDiverged, System, simulate
 
 
 @dataclass(frozen=True)
-class Refinement:
+class PolishResult:
     """The polished model, its parameter table and how the fit went."""
 
     model: IdentifiedModel
@@ -54,7 +54,7 @@ STARTS = 5
 """Delays tried as starting points (the simulation error has local minima in tau)."""
 
 
-def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3) -> Refinement:
+def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3) -> PolishResult:
     """Output-error polish with several starting delays: each start is fitted on a coarse
     simulation step, the best is refined at the sample step."""
     start = time.perf_counter()
@@ -75,7 +75,7 @@ def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 
     if best is None:
         raise CvxidError("the output-error polish failed from every starting delay (diverging simulations)")
     final = output_error(best.model, experiment, best.x0, best.v0, step=experiment.dt, max_iterations=50)
-    return Refinement(final.model, final.parameters, final.standard_errors, output_rms(model, experiment),
+    return PolishResult(final.model, final.parameters, final.standard_errors, output_rms(model, experiment),
                       final.rms_after, final.x0, final.v0, final.iterations, time.perf_counter() - start)
 
 
@@ -113,7 +113,7 @@ def output_error(
     v0: float | None = None,
     step: float = 1e-3,
     max_iterations: int = 30,
-) -> Refinement:
+) -> PolishResult:
     """Polish ``model`` on ``experiment`` by output error from its own delay (see the
     module docstring; :func:`polish` adds several starting delays)."""
     start = time.perf_counter()
@@ -206,7 +206,7 @@ def output_error(
     params = dict(zip(names, map(float, theta)))
     errors = dict(zip(names, map(float, se)))
     refined = _updated(model, system, params)
-    return Refinement(refined, params, errors, before, after, params["x0"], params["v0"], int(sol.nfev),
+    return PolishResult(refined, params, errors, before, after, params["x0"], params["v0"], int(sol.nfev),
                       time.perf_counter() - start)
 
 
