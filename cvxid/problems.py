@@ -234,6 +234,10 @@ def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
         names[k] = v
     alg = _table(table, "algebraic", where, {"n", "m"})
     nonneg = tuple(parse_term(n, (coord,)).name for n in _strings(cons, "nonnegative", "model.constraints"))
+    columns = set(library.names) | {coord + "''"}
+    for pname, tname in names.items():
+        if parse_term(tname, (coord,)).name not in columns:
+            raise CvxidError(f"spec: [model.names] {pname} = '{tname}' is not a term of the library")
     return ModelSpec(
         library=library,
         coordinate=coord,

@@ -1,0 +1,109 @@
+"""Compare, residuals, diagnose, add and refit — on data with a hidden effect."""
+
+import numpy as np
+import pytest
+
+from cvxid import CvxidError
+from cvxid.data import Experiment
+from cvxid.delay import DelayedFeedback
+from cvxid.diagnostics import compare, diagnose, refine, refit, residuals, with_effect
+from cvxid.library import Library
+from cvxid.model import ModelSpec
+from cvxid.simulate import System, simulate
+from cvxid.terms import parse_term
+
+HIDDEN = {
+    "coulomb": ("sign(x')", 0.8),
+    "cubic_stiffness": ("x^3", 3.0),
+    "quadratic_damping": ("x'|x'|", 0.6),
+    None: None,
+}
+
+
+def experiments(hidden, noise=0.001):
+    coef = {"x'": 0.4, "x": 6.0}
+    if HIDDEN[hidden]:
+        coef[HIDDEN[hidden][0]] = HIDDEN[hidden][1]
+    system = System(tuple(parse_term(n) for n in coef), np.array(list(coef.values())), 1.0, "x", 1.5, 0.15, 0, "zero")
+
+    def record(seed, amps, omegas, x0):
+        t = np.arange(8001) * 1e-3
+        force = lambda s: sum(a * np.sin(o * s + i) for i, (a, o) in enumerate(zip(amps, omegas)))
+        x, v = simulate(system, t, force, x0, 0.0)
+        rng = np.random.default_rng(seed)
+        return Experiment(t, {"x": x + noise * rng.standard_normal(t.size)}, {"f": force(t)}, f"e{seed}", {"x": v})
+
+    return record(1, [3, 2, 1.5], [1.9, 4.7, 8.3], 0.3), record(2, [2.5, 2.5], [2.9, 6.1], -0.2)
+
+
+def linear_model():
+    spec = ModelSpec(
+        Library([parse_term("x'"), parse_term("x")]),
+        delay=DelayedFeedback("x", 0, 1.5, method="exact", tau_max=0.4),
+        nonnegative=("x''",),
+    )
+    return spec
+
+
+@pytest.mark.parametrize("hidden", ["coulomb", "cubic_stiffness", "quadratic_damping"])
+def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
+    train, test = experiments(hidden)
+    start = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    dx = diagnose(start, train, test)
+    assert dx.top == hidden, dx
+    result = refine(start, train, test)
+    assert [s.added for s in result.steps] == [hidden]  # added, then the loop stops
+    step = result.steps[0]
+    assert step.test_mse_before >= 3 * step.test_mse_after
+    assert step.fit_after > 90
+    assert hidden in {g for group in dx.groups for g in group}
+
+
+def test_control_case_adds_nothing():
+    train, test = experiments(None)
+    start = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    result = refine(start, train, test)
+    assert result.steps == []
+    assert "nothing added" in repr(result)
+
+
+def test_compare_reports_fit_and_k_step():
+    train, test = experiments(None)
+    model = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    cmp = compare(model, test)
+    assert cmp.fit_percent > 90 and cmp.k_step_fit_percent > 90
+    assert list(cmp.table().index) == ["free run", f"{cmp.k_step}-step ahead"]
+
+
+def test_diverging_model_gives_a_message_not_nans():
+    train, test = experiments(None)
+    model = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    unstable = type(model)(model.spec, dict(model.coefficients, x=-80.0), tau=model.tau)
+    cmp = compare(unstable, test)
+    assert cmp.fit_percent is None and "diverged" in cmp.message
+
+
+def test_residual_shows_a_friction_step_at_zero_velocity():
+    train, _ = experiments("coulomb")
+    model = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    bins = residuals(model, train).binned("velocity", bins=10)
+    # with the friction missing, the residual jumps down by about 2 x 0.8 where v crosses 0
+    below = bins[bins["center"] < 0]["mean"].iloc[-1]
+    above = bins[bins["center"] > 0]["mean"].iloc[0]
+    assert below - above > 1.0
+
+
+def test_coloured_bound_is_wider_than_the_white_noise_bound():
+    train, _ = experiments(None)
+    model = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    corr = residuals(model, train).correlations()
+    assert corr["bound"].iloc[0] > 3 * corr["white_bound"].iloc[0]
+
+
+def test_with_effect_adds_the_term_and_its_sign_constraint():
+    spec = with_effect(linear_model(), "coulomb")
+    assert "sign(x')" in spec.column_names and "sign(x')" in spec.nonnegative
+    with pytest.raises(CvxidError, match="already has"):
+        with_effect(spec, "coulomb")
+    with pytest.raises(CvxidError, match="unknown term or effect"):
+        with_effect(spec, "magic")
