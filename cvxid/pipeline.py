@@ -22,6 +22,7 @@ from .identified import IdentifiedModel
 from .path import Path
 from .problem import Problem
 from .problems import ProblemSpec, load_problem
+from .diagnostics import Diagnosis, Refinement, diagnose, refine
 from .estimate import ESTIMATORS
 from .profile import profile_delay
 from .polish import PolishResult, polish
@@ -49,6 +50,8 @@ class RunResult:
     order_search: OrderSearch | None = None
     tau: dict | None = None
     polish: PolishResult | None = None
+    diagnosis: Diagnosis | None = None
+    refinement: Refinement | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -76,6 +79,11 @@ class RunResult:
             "seconds": self.seconds,
             "warnings": self.warnings,
             "tau": self.tau,
+            "diagnosis": None if self.diagnosis is None else {
+                "ranking": self.diagnosis.records(),
+                "groups": self.diagnosis.groups,
+            },
+            "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
             "polish": None if self.polish is None else {
                 "method": "output_error",
                 "rms_before": self.polish.rms_before,
@@ -118,6 +126,10 @@ class RunResult:
         ]
         if self.order_search is not None:
             lines[-1:-1] = [repr(self.order_search), ""]
+        if self.diagnosis is not None:
+            lines[-1:-1] = [repr(self.diagnosis), ""]
+        if self.refinement is not None:
+            lines[-1:-1] = [repr(self.refinement), ""]
         lines += [f"  warning: {w}" for w in self.warnings]
         return "\n".join(lines)
 
@@ -208,6 +220,20 @@ def _identify(spec: ProblemSpec) -> RunResult:
             taus = ensemble.physical["tau"]
             interval = [float(taus.quantile(0.025)), float(taus.quantile(0.975))]
         tau_info = {"estimate": model.physical["tau"], "interval": interval, "method": "taylor"}
+    diagnosis = refinement = None
+    if spec.diagnose is not None and test is not None:
+        settings = spec.diagnose
+        refinement = refine(model, train, test, settings.candidates, settings.min_improvement,
+                            settings.max_steps if settings.refine else 0, velocity)
+        model = refinement.model
+        diagnosis = refinement.diagnoses[0] if refinement.diagnoses else diagnose(
+            model, train, test, settings.candidates, velocity)
+        if refinement.steps and model_spec.delay is not None and model_spec.delay.exact:
+            tau_info = dict(tau_info, estimate=model.tau, interval=None, method="profile (after refinement)")
+        model_spec = model.spec
+        problem = Problem.from_regression(
+            DelayFamily(model_spec, train, velocity).at(model.tau), model_spec.nonnegative, fit.solver)
+        validation = DelayFamily(model_spec, test, velocity).at(model.tau)
     polished = None
     if fit.refine == "output_error":
         polished = polish(model, train)
@@ -223,5 +249,5 @@ def _identify(spec: ProblemSpec) -> RunResult:
         spec, model, path, problem, train, test,
         validation.mse(vector) if validation else float("nan"),
         validation.nmse(vector) if validation else float("nan"),
-        0.0, [], ensemble, search, tau_info, polished,
+        0.0, [], ensemble, search, tau_info, polished, diagnosis, refinement,
     )

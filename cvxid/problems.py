@@ -127,6 +127,7 @@ class ProblemSpec:
     truth: Truth | None
     description: str = ""
     polynomial: tuple[int, bool, tuple[str, ...]] | None = None  # (order, cross, extra) of the library
+    diagnose: "DiagnoseSettings | None" = None
 
     def library(self, order: int) -> Library:
         """The spec's polynomial library at another order (for the order search)."""
@@ -150,7 +151,7 @@ class ProblemSpec:
         )
 
 
-TOP_KEYS = {"name", "description", "truth", "data", "model", "fit"}
+TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
@@ -189,7 +190,31 @@ def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> Pr
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
-    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial)
+    diag = _diagnose(raw, model) if "diagnose" in raw else None
+    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial, diag)
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    candidates: tuple[str, ...] | None = None  # None: the catalogue minus the model
+    refine: bool = False
+    min_improvement: float = 0.2
+    max_steps: int = 5
+
+
+def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
+    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps"})
+    candidates = None
+    if "candidates" in d:
+        candidates = tuple(_strings(d, "candidates", "diagnose"))
+        for c in candidates:
+            resolve_term(c, (model.coordinate,))  # unknown names fail here, with the catalogue
+    return DiagnoseSettings(
+        candidates=candidates,
+        refine=_bool(d, "refine", "diagnose", False),
+        min_improvement=_number(d, "min_improvement", "diagnose", 0.2, positive=True),
+        max_steps=_number(d, "max_steps", "diagnose", 5, positive=True, integer=True),
+    )
 
 
 def _model(table: Table) -> tuple[ModelSpec, tuple | None]:

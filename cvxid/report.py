@@ -6,11 +6,10 @@ import json
 from pathlib import Path
 
 import matplotlib.pyplot as plt
-import numpy as np
 
 from .errors import CvxidError
-from .plots import comparison_figure, path_figure
-from .simulate import SimulationDiverged
+from .diagnostics import compare
+from .plots import path_figure
 
 
 def write_report(result, out) -> Path:
@@ -26,27 +25,27 @@ def write_report(result, out) -> Path:
     fig.savefig(out / "path.png", dpi=110)
     plt.close(fig)
     figures["path"] = "path.png"
+    if result.refinement is not None and result.refinement.steps:
+        fig = result.refinement.plot()
+        fig.savefig(out / "refinement.png", dpi=110)
+        plt.close(fig)
+        figures["refinement"] = "refinement.png"
     if result.order_search is not None:
         fig = result.order_search.plot()
         fig.savefig(out / "orders.png", dpi=110)
         plt.close(fig)
         figures["orders"] = "orders.png"
     if result.test is not None:
-        test = result.test
-        coord = result.spec.model.coordinate
-        x = test.output(coord)
-        try:
-            v0 = float(np.polyfit(test.time[:50], x[:50], 2)[1])  # slope of a local quadratic at t0
-            sim, _ = result.model.simulate(test, float(x[0]), v0)
-            fit = 100 * (1 - np.linalg.norm(x - sim) / np.linalg.norm(x - x.mean()))
-            data["test_fit_percent"] = float(fit)
-            fig = comparison_figure(test.time, x, sim, f"test data: free-run fit {fit:.1f} %")
+        cmp = compare(result.model, result.test)
+        data["test_fit_percent"] = cmp.fit_percent
+        data["test_k_step_fit_percent"] = cmp.k_step_fit_percent
+        if cmp.free_run is not None:
+            fig = cmp.plot()
             fig.savefig(out / "test_fit.png", dpi=110)
             plt.close(fig)
             figures["test_fit"] = "test_fit.png"
-        except SimulationDiverged as exc:
-            data["test_fit_percent"] = None
-            result.warnings.append(str(exc))
+        else:
+            result.warnings.append(cmp.message)
             data["warnings"] = result.warnings
     data["figures"] = figures
     (out / "result.json").write_text(json.dumps(data, indent=2, allow_nan=True))
