@@ -24,10 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.signal import savgol_filter
 
 from .data import Experiment
 from .errors import CvxidError
 from .identified import IdentifiedModel
+from .estimate import savgol_window
 from .simulate import SimulationDiverged, System, simulate
 
 
@@ -91,11 +93,13 @@ def output_rms(model: IdentifiedModel, experiment: Experiment) -> float:
     return float(np.sqrt(np.mean((x - y) ** 2)))
 
 
-def initial_state(t: np.ndarray, y: np.ndarray, samples: int = 20) -> tuple[float, float]:
-    """Position and velocity at the first sample from a local quadratic fit."""
-    n = min(samples, len(t))
-    c = np.polyfit(t[:n] - t[0], y[:n], 2)
-    return float(c[2]), float(c[1])
+def initial_state(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Position and velocity at the first sample, from a Savitzky–Golay fit whose window
+    is chosen from the noise (a short fixed window lets the noise into the velocity)."""
+    w = savgol_window(y)
+    dt = float(t[1] - t[0])
+    return (float(savgol_filter(y, w, 3, mode="interp")[0]),
+            float(savgol_filter(y, w, 3, deriv=1, delta=dt, mode="interp")[0]))
 
 
 def _with_tau(model: IdentifiedModel, tau: float) -> IdentifiedModel:
