@@ -192,11 +192,14 @@ def output_error(
 
     before = float(np.sqrt(np.mean(fun(theta0) ** 2)))
     lower = np.full(theta0.size, -np.inf)
+    upper = np.full(theta0.size, np.inf)
     if spec.inertia:
         lower[0] = 1e-9
     if has_delay:
-        lower[names.index("tau")] = 0.0
-    sol = least_squares(fun, theta0, jac=jac, bounds=(lower, np.inf), method="trf", x_scale="jac",
+        i = names.index("tau")
+        lower[i], upper[i] = spec.delay.tau_min, spec.delay.tau_max
+        theta0[i] = np.clip(theta0[i], lower[i], upper[i])
+    sol = least_squares(fun, theta0, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
                         max_nfev=max_iterations)
     theta = sol.x
     r = fun(theta)
