@@ -27,9 +27,29 @@ def _run(args) -> int:
 
 
 def _bench(args) -> int:
+    if args.accuracy:
+        return _accuracy(args)
     from .bench import run_bench
 
     run_bench(args.spec, args.order, args.naive_lambdas, args.json, args.jobs)
+    return 0
+
+
+def _accuracy(args) -> int:
+    import json
+
+    from .accuracy import accuracy, summary
+    from .problems import load_problem
+
+    noises = tuple(float(v) for v in args.noises.split(","))
+    frame = accuracy(load_problem(args.spec), noises, args.seeds)
+    table = summary(frame)
+    print(f"cvxid bench --accuracy: {args.spec}, {args.seeds} seeds per noise level, true structure, noisy x only")
+    print(table.to_string(float_format=lambda v: f"{v:.3f}"))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump({"runs": frame.to_dict(orient="records"),
+                       "summary": table.reset_index().to_dict(orient="records")}, fh, indent=2)
     return 0
 
 
@@ -45,6 +65,9 @@ def main(argv=None) -> int:
     p_bench.add_argument("--naive-lambdas", type=int, default=5, help="lambdas timed for the naive cvxpy baseline")
     p_bench.add_argument("--jobs", type=int, default=2, help="joblib workers for Algorithm 1")
     p_bench.add_argument("--json", default=None, help="also write the figures to this JSON file")
+    p_bench.add_argument("--accuracy", action="store_true", help="delay and parameter errors of four methods")
+    p_bench.add_argument("--seeds", type=int, default=5, help="seeds per noise level (--accuracy)")
+    p_bench.add_argument("--noises", default="0,0.001,0.01,0.05", help="noise levels (--accuracy)")
     args = parser.parse_args(argv)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
