@@ -171,51 +171,30 @@ def _pick(available: Mapping[str, np.ndarray], wanted: str, what: str, source: P
     return available[wanted]
 
 
-def _from_columns(
-    columns: Mapping[str, np.ndarray],
-    source: Path,
-    time: str,
-    outputs: Mapping[str, str],
-    inputs: Mapping[str, str],
-    velocities: Mapping[str, str] | None,
-    name: str,
-    what: str,
-) -> Experiment:
-    return Experiment(
-        _pick(columns, time, what, source),
-        {k: _pick(columns, v, what, source) for k, v in outputs.items()},
-        {k: _pick(columns, v, what, source) for k, v in inputs.items()},
-        name=name,
-        velocities={k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()},
-    )
-
-
-def load_csv(
-    path,
-    time: str,
-    outputs: Mapping[str, str],
-    inputs: Mapping[str, str],
-    velocities: Mapping[str, str] | None = None,
-    name: str | None = None,
-) -> Experiment:
-    """Read an experiment from a CSV file whose header row names the columns.
-
-    ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column names.
-    """
+def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     import pandas as pd
 
-    path = Path(path)
-    if not path.is_file():
-        raise CvxidError(f"data file not found: {path}")
     try:
         frame = pd.read_csv(path)
     except Exception as exc:  # pandas raises many types for malformed files
         raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
-    columns = {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
-    return _from_columns(columns, path, time, outputs, inputs, velocities, name or path.stem, "column")
+    return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
 
 
-def load_mat(
+def _mat_columns(path: Path) -> dict[str, np.ndarray]:
+    from scipy.io import loadmat
+
+    try:
+        raw = loadmat(path)
+    except Exception as exc:  # scipy raises many types for malformed files
+        raise CvxidError(f"{path}: cannot be read as a MATLAB file ({exc})") from None
+    return {k: v for k, v in raw.items() if not k.startswith("__")}
+
+
+READERS = {".csv": (_csv_columns, "column"), ".mat": (_mat_columns, "variable")}
+
+
+def load(
     path,
     time: str,
     outputs: Mapping[str, str],
@@ -223,25 +202,24 @@ def load_mat(
     velocities: Mapping[str, str] | None = None,
     name: str | None = None,
 ) -> Experiment:
-    """Read an experiment from a MATLAB ``.mat`` file, by variable names."""
-    from scipy.io import loadmat
+    """Read an experiment from a CSV file (header row names the columns) or a MATLAB
+    ``.mat`` file (variables by name), chosen by the suffix.
 
+    ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
+    variable names in the file.
+    """
     path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in READERS:
+        raise CvxidError(f"{path}: unknown data format '{suffix}'; use a .csv or .mat file")
     if not path.is_file():
         raise CvxidError(f"data file not found: {path}")
-    try:
-        raw = loadmat(path)
-    except Exception as exc:
-        raise CvxidError(f"{path}: cannot be read as a MATLAB file ({exc})") from None
-    columns = {k: v for k, v in raw.items() if not k.startswith("__")}
-    return _from_columns(columns, path, time, outputs, inputs, velocities, name or path.stem, "variable")
-
-
-def load(path, **kwargs) -> Experiment:
-    """Read an experiment from a ``.csv`` or ``.mat`` file (chosen by the suffix)."""
-    suffix = Path(path).suffix.lower()
-    if suffix == ".csv":
-        return load_csv(path, **kwargs)
-    if suffix == ".mat":
-        return load_mat(path, **kwargs)
-    raise CvxidError(f"{path}: unknown data format '{suffix}'; use a .csv or .mat file")
+    reader, what = READERS[suffix]
+    columns = reader(path)
+    return Experiment(
+        _pick(columns, time, what, path),
+        {k: _pick(columns, v, what, path) for k, v in outputs.items()},
+        {k: _pick(columns, v, what, path) for k, v in inputs.items()},
+        name=name or path.stem,
+        velocities={k: _pick(columns, v, what, path) for k, v in (velocities or {}).items()},
+    )

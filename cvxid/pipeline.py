@@ -251,3 +251,15 @@ def _identify(spec: ProblemSpec) -> RunResult:
         validation.nmse(vector) if validation else float("nan"),
         0.0, [], ensemble, search, tau_info, polished, diagnosis, refinement,
     )
+
+
+def refine_spec(spec: ProblemSpec | str | FilePath, **settings):
+    """Run ``spec`` with its diagnosis loop on (``[diagnose] refine = true``); the loop's
+    :class:`~cvxid.diagnostics.Refinement` (steps, diagnoses, final model, ``plot()``)."""
+    from .problems import DiagnoseSettings
+
+    if not isinstance(spec, ProblemSpec):
+        spec = load_problem(spec)
+    current = spec.diagnose or DiagnoseSettings()
+    spec = replace(spec, diagnose=replace(current, refine=True, **settings))
+    return run(spec).refinement
