@@ -124,3 +124,17 @@ def test_paper_data_support_and_parameters():
     for name, value in truth.items():
         assert abs(phys[name] - value) <= abs(paper[name] - value) + 1e-3, name
     assert phys["tau"] == pytest.approx(0.1998, rel=0.02)
+
+
+@needs_paper_data
+@pytest.mark.slow
+def test_paper_data_exact_delay_with_output_error_polish():
+    """The paper's data: the effective delay 0.1998 s within 1.5 %, inside the interval."""
+    result = run(ROOT / "problems" / "paper_duffing_exact.toml")
+    assert set(result.model.support) == {"x''", "x", "x'", "x^2 x'", "x'^3", "x^3"}
+    assert result.tau["method"] == "output_error"
+    assert result.tau["estimate"] == pytest.approx(0.1998, rel=0.015)
+    lo, hi = result.tau["interval"]
+    assert lo <= 0.1998 <= hi
+    for name, value in {"m": 1.0, "k1": 6.0, "k3": 2.0, "c1": 1.0, "c2": 1.0, "c3": 1.0}.items():
+        assert result.model.physical[name] == pytest.approx(value, rel=0.02), name
