@@ -17,15 +17,15 @@ import pandas as pd
 
 from .bootstrap import Bootstrap, bootstrap
 from .data import Experiment
-from .errors import CvxidWarning
+from .diagnostics import Diagnosis, Refinement, diagnose, refine
+from .errors import CvxidError, CvxidWarning
+from .estimate import ESTIMATORS
 from .identified import IdentifiedModel
 from .path import Path
+from .polish import PolishResult, polish
 from .problem import Problem
 from .problems import ProblemSpec, load_problem
-from .diagnostics import Diagnosis, Refinement, diagnose, refine
-from .estimate import ESTIMATORS
 from .profile import profile_delay
-from .polish import PolishResult, polish
 from .regression import DelayFamily
 from .selection import OrderSearch, order_search
 
@@ -52,6 +52,7 @@ class RunResult:
     polish: PolishResult | None = None
     diagnosis: Diagnosis | None = None
     refinement: Refinement | None = None
+    velocity_scores: dict | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -74,6 +75,7 @@ class RunResult:
             "estimator": self.spec.fit.estimator,
             "selection": self.spec.fit.selection,
             "velocity": self.spec.fit.velocity,
+            "velocity_scores": self.velocity_scores,
             "algebraic_orders": {"n": self.spec.model.algebraic_orders.n, "m": self.spec.model.algebraic_orders.m},
             "solver": self.problem.solver,
             "seconds": self.seconds,
@@ -155,10 +157,27 @@ def run(spec: ProblemSpec | str | FilePath) -> RunResult:
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CvxidWarning)
-        result = _identify(spec)
+        if spec.fit.velocity == "auto":
+            result = _best_velocity(spec)
+        else:
+            result = _identify(spec)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
     result.seconds = time.perf_counter() - start
     return result
+
+
+def _best_velocity(spec: ProblemSpec) -> RunResult:
+    """``velocity = "auto"``: identify with each estimator, keep the least test error."""
+    if "test" not in spec.data:
+        raise CvxidError('velocity = "auto" chooses by the test error: add [data.test]')
+    scores, best = {}, None
+    for name in ESTIMATORS:
+        result = _identify(replace(spec, fit=replace(spec.fit, velocity=name)))
+        scores[name] = result.test_mse
+        if best is None or result.test_mse < best.test_mse:
+            best = result
+    best.velocity_scores = scores
+    return best
 
 
 def _identify(spec: ProblemSpec) -> RunResult:

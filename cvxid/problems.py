@@ -378,7 +378,7 @@ def _experiment(spec: ProblemSpec, which: str, table: Table) -> Experiment:
         return _simulated(spec, which, _table(table, "simulate", where, SIM_KEYS))
     file = spec.folder / _string(table, "file", where)
     velocity = table.get("velocity")
-    if velocity is None and spec.fit.velocity not in ESTIMATORS + ("measured",):
+    if velocity is None and spec.fit.velocity not in ESTIMATORS + ("measured", "auto"):
         velocity = spec.fit.velocity  # [fit] velocity names a measured column
     return load(
         file,

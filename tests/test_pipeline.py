@@ -138,3 +138,13 @@ def test_paper_data_exact_delay_with_output_error_polish():
     assert lo <= 0.1998 <= hi
     for name, value in {"m": 1.0, "k1": 6.0, "k3": 2.0, "c1": 1.0, "c2": 1.0, "c3": 1.0}.items():
         assert result.model.physical[name] == pytest.approx(value, rel=0.02), name
+
+
+def test_velocity_auto_keeps_the_least_test_error(tmp_path):
+    path = write_spec(tmp_path)
+    path.write_text(path.read_text().replace('velocity = "measured"', 'velocity = "auto"'))
+    result = run(path)
+    scores = result.velocity_scores
+    assert set(scores) == {"observer", "savgol", "spline"}
+    assert result.test_mse == pytest.approx(min(scores.values()))
+    assert result.to_dict()["velocity_scores"] == scores
