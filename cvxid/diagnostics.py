@@ -245,12 +245,14 @@ def diagnose(
     test: Experiment | None = None,
     candidates: Sequence[str] | None = None,
     velocity: str = "savgol",
+    window: float | None = None,
 ) -> Diagnosis:
-    """Rank ``candidates`` (catalogue names or term names) missing from ``model``."""
+    """Rank ``candidates`` (catalogue names or term names) missing from ``model``
+    (``velocity`` and restart ``window`` as in :class:`~cvxid.regression.DelayFamily`)."""
     spec = model.spec
     terms = _candidate_terms(spec, candidates if candidates is not None else default_candidates(spec))
     extended = replace(spec, library=spec.library + list(terms.values()))
-    reg = DelayFamily(extended, train, velocity).at(model.tau)
+    reg = DelayFamily(extended, train, velocity, window).at(model.tau)
     names = list(reg.names)
     used = [names.index(n) for n in spec.column_names if model.coefficients.get(n, 0.0) != 0.0]
     scale = np.sqrt(np.mean(reg.P**2, axis=0))
@@ -266,7 +268,7 @@ def diagnose(
     val_before = val_after = None
     drops = {}
     if test is not None:
-        treg = DelayFamily(extended, test, velocity).at(model.tau)
+        treg = DelayFamily(extended, test, velocity, window).at(model.tau)
         base = Problem.from_regression(reg, spec.nonnegative)
         mask = np.zeros(len(names), bool)
         mask[used] = True
@@ -355,12 +357,12 @@ class Refinement:
 
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
-          velocity: str = "savgol", lam: float = 0.0) -> IdentifiedModel:
+          velocity: str = "savgol", lam: float = 0.0, window: float | None = None) -> IdentifiedModel:
     """Least squares of ``spec`` on the named columns (plus the unpenalised ones); an exact
     delay is profiled again on that support."""
     from .profile import profile_delay
 
-    family = DelayFamily(spec, train, velocity)
+    family = DelayFamily(spec, train, velocity, window)
     names = spec.column_names
     mask = np.array([n in support for n in names]) | np.array([c.penalty == 0 for c in spec.columns])
     if spec.delay is not None and spec.delay.exact:
@@ -378,6 +380,7 @@ def refine(
     min_improvement: float = 0.2,
     max_steps: int = 5,
     velocity: str = "savgol",
+    window: float | None = None,
 ) -> Refinement:
     """Repeat diagnose → add the best effect → refit while the test equation error falls
     by more than ``min_improvement`` (0.2: by 20 %)."""
@@ -388,16 +391,16 @@ def refine(
         pool = [c for c in pool if resolve_term(c, (model.spec.coordinate,)).name not in model.spec.column_names]
         if not pool:
             break
-        dx = diagnose(model, train, test, pool, velocity)
+        dx = diagnose(model, train, test, pool, velocity, window)
         diagnoses.append(dx)
         best = dx.top
         if dx.ranking.loc[best, "validation_ratio"] < 1 + min_improvement:
             break
-        before = _test_mse(model, test, velocity)
+        before = _test_mse(model, test, velocity, window)
         spec2 = with_effect(model.spec, best)
         support = [n for n, c in model.coefficients.items() if c != 0.0] + [dx.ranking.loc[best, "term"]]
-        new = refit(spec2, train, support, model.tau, velocity, model.lam)
-        after = _test_mse(new, test, velocity)
+        new = refit(spec2, train, support, model.tau, velocity, model.lam, window)
+        after = _test_mse(new, test, velocity, window)
         old_cmp, new_cmp = compare(model, test), compare(new, test)
         # accept only when the simulation agrees: the k-step-ahead error must fall too
         # (equation errors alone accepted a spurious term in our hidden-effect trials)
@@ -415,6 +418,6 @@ def _sim_error(cmp: Comparison) -> float:
     return np.inf if cmp.k_step_fit_percent is None else 100.0 - cmp.k_step_fit_percent
 
 
-def _test_mse(model: IdentifiedModel, test: Experiment, velocity: str) -> float:
-    reg = DelayFamily(model.spec, test, velocity).at(model.tau)
+def _test_mse(model: IdentifiedModel, test: Experiment, velocity: str, window: float | None) -> float:
+    reg = DelayFamily(model.spec, test, velocity, window).at(model.tau)
     return reg.mse(np.array([model.coefficients[n] for n in reg.names]))

@@ -189,8 +189,8 @@ def _identify(spec: ProblemSpec) -> RunResult:
     if fit.orders:
         model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
     exact = model_spec.delay is not None and model_spec.delay.exact
-    family = DelayFamily(model_spec, train, velocity)
-    test_family = DelayFamily(model_spec, test, velocity) if test else None
+    family = DelayFamily(model_spec, train, velocity, fit.window)
+    test_family = DelayFamily(model_spec, test, velocity, fit.window) if test else None
     tau = profile_delay(family, nonnegative=model_spec.nonnegative).estimate if exact else None
     regression = family.at(tau)
     validation = test_family.at(tau) if test else None
@@ -204,7 +204,7 @@ def _identify(spec: ProblemSpec) -> RunResult:
         model_spec = model_spec.with_library(spec.library(search.best_order))
         regression = regression.subset(model_spec.column_names)
         validation = validation.subset(model_spec.column_names)
-        family = DelayFamily(model_spec, train, velocity)
+        family = DelayFamily(model_spec, train, velocity, fit.window)
     problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
     path = Path.compute(
         problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator, debias=fit.debias
@@ -243,16 +243,16 @@ def _identify(spec: ProblemSpec) -> RunResult:
     if spec.diagnose is not None and test is not None:
         settings = spec.diagnose
         refinement = refine(model, train, test, settings.candidates, settings.min_improvement,
-                            settings.max_steps if settings.refine else 0, velocity)
+                            settings.max_steps if settings.refine else 0, velocity, fit.window)
         model = refinement.model
         diagnosis = refinement.diagnoses[0] if refinement.diagnoses else diagnose(
-            model, train, test, settings.candidates, velocity)
+            model, train, test, settings.candidates, velocity, fit.window)
         if refinement.steps and model_spec.delay is not None and model_spec.delay.exact:
             tau_info = dict(tau_info, estimate=model.tau, interval=None, method="profile (after refinement)")
         model_spec = model.spec
         problem = Problem.from_regression(
-            DelayFamily(model_spec, train, velocity).at(model.tau), model_spec.nonnegative, fit.solver)
-        validation = DelayFamily(model_spec, test, velocity).at(model.tau)
+            DelayFamily(model_spec, train, velocity, fit.window).at(model.tau), model_spec.nonnegative, fit.solver)
+        validation = DelayFamily(model_spec, test, velocity, fit.window).at(model.tau)
     polished = None
     if fit.refine == "output_error":
         polished = polish(model, train)

@@ -113,6 +113,7 @@ class FitSettings:
     bootstrap: "BootstrapSettings | None" = None
     orders: tuple[int, ...] = ()
     refine: str | None = None
+    window: float | None = None
 
 
 @dataclass(frozen=True)
@@ -156,7 +157,7 @@ DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine"}
+            "refine", "window"}
 
 
 def load_problem(path) -> ProblemSpec:
@@ -304,6 +305,7 @@ def _fit(table: Table) -> FitSettings:
         bootstrap=_bootstrap(table),
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
+        window=_number(table, "window", where, positive=True) if "window" in table else None,
     )
 
 

@@ -160,24 +160,45 @@ def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[s
     return states
 
 
+def _windows(experiment: Experiment, window: float | None) -> list[np.ndarray]:
+    """Sample indices of consecutive restart windows (the whole record without ``window``).
+
+    The integrals of the algebraic operation restart in each window, so their polynomial
+    weights stay bounded on long records (and any offset cannot grow over the whole record).
+    """
+    n = experiment.n
+    if window is None:
+        return [np.arange(n)]
+    length = int(round(window / experiment.dt))
+    if length < 10:
+        raise CvxidError(f"the restart window ({window:g} s) holds fewer than 10 samples; lengthen it")
+    return [np.arange(s, min(s + length, n)) for s in range(0, n - length // 2, length)]
+
+
 class DelayFamily:
     """Regressions of one model and data over the delay :math:`\tau`.
 
     Columns that do not depend on the delay are transformed once; :meth:`at` adds the
     delayed signal :math:`x^{(q)}(t-\tau)` (interpolated by a cubic spline), as a column
     when the gain is unknown or moved into the target when it is known.  With an exact
-    delay every experiment restarts its integrals at ``tau_max`` (the first ``tau_max``
-    seconds serve as the delayed signal's history), so regressions at different delays
-    share their rows and their errors compare.
+    delay every experiment (and every restart window) restarts its integrals at
+    ``tau_max`` (the first ``tau_max`` seconds serve as the delayed signal's history), so
+    regressions at different delays share their rows and their errors compare.  With
+    ``window`` (seconds) the integrals restart in consecutive windows (stacked rows).
     """
 
-    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol"):
+    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | None = None):
         self.model = model
         exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
         self.experiments = exps
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
+        if window is not None and not window > 2 * self.start:
+            raise CvxidError(
+                f"the restart window ({window:g} s) must be longer than twice tau_max ({self.start:g} s)"
+            )
         self.blocks = []
+        cols = [c for c in model.columns if not isinstance(c.term, DelayedSignal)]
         for e in exps:
             if exact and e.duration < 2 * self.start:
                 raise CvxidError(
@@ -185,17 +206,17 @@ class DelayFamily:
                     f"tau_max = {self.start:g} s (it needs at least twice that); lower "
                     "[model.delay] tau_max or use a longer record"
                 )
-            states = states_of(model, e, velocity)
-            keep = e.time >= e.time[0] + self.start - 1e-9 * e.dt
-            transform = AlgebraicTransform(e.time[keep], model.algebraic_orders)
-            window = {k: v[keep] for k, v in states.items()}
-            cols = [c for c in model.columns if not isinstance(c.term, DelayedSignal)]
-            base = {c.name: transform.column(*c.term.regression_signal(window)) for c in cols}
-            p = transform.column(e.input(model.input)[keep])
-            if not model.inertia:
-                p = p - model.mass * transform.column(window[model.coordinate], 2)
+            states = states_of(model, e, velocity)  # on the whole record: no edge effects per window
             spline = CubicSpline(e.time, e.output(model.coordinate)) if exact else None
-            self.blocks.append((transform, base, p, spline, e.time[keep]))
+            for rows in _windows(e, window):
+                keep = rows[e.time[rows] >= e.time[rows[0]] + self.start - 1e-9 * e.dt]
+                transform = AlgebraicTransform(e.time[keep], model.algebraic_orders)
+                sliced = {k: v[keep] for k, v in states.items()}
+                base = {c.name: transform.column(*c.term.regression_signal(sliced)) for c in cols}
+                p = transform.column(e.input(model.input)[keep])
+                if not model.inertia:
+                    p = p - model.mass * transform.column(sliced[model.coordinate], 2)
+                self.blocks.append((transform, base, p, spline, e.time[keep]))
 
     def at(self, tau: float | None = None) -> Regression:
         model = self.model
