@@ -1,0 +1,44 @@
+"""The examples in examples/ run (small settings) and tell their story."""
+
+import os
+import runpy
+import sys
+
+import pytest
+
+from .conftest import ROOT, SHARED_DATA
+
+EXAMPLES = ROOT / "examples"
+
+
+def run_example(name, monkeypatch, tmp_path, capsys, **env):
+    monkeypatch.setenv("OUT", str(tmp_path))
+    for key, value in env.items():
+        monkeypatch.setenv(key, value)
+    monkeypatch.setattr(sys, "argv", [name])
+    runpy.run_path(str(EXAMPLES / name), run_name="__main__")
+    return capsys.readouterr().out
+
+
+def test_hidden_effect_story(monkeypatch, tmp_path, capsys):
+    out = run_example("hidden_effect.py", monkeypatch, tmp_path, capsys)
+    assert "coulomb" in out.split("Refinement")[1]
+    for figure in ("1_linear_fit", "2_residual_vs_velocity", "3_error_falls", "4_final_fit"):
+        assert (tmp_path / f"{figure}.png").is_file()
+
+
+@pytest.mark.slow
+def test_paper_example_table(monkeypatch, tmp_path, capsys):
+    out = run_example("paper_duffing.py", monkeypatch, tmp_path, capsys, SEEDS="1")
+    assert "exact+oe" in out and "paper (true v)" in out
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not (SHARED_DATA / "silverbox_SNLS80mV.mat").is_file(), reason="Silverbox data absent")
+def test_silverbox_diagnosis_finds_cubic_stiffness(monkeypatch, tmp_path, capsys):
+    out = run_example("silverbox.py", monkeypatch, tmp_path, capsys)
+    lines = [line for line in out.splitlines() if "free-run fit" in line]
+    before = [float(line.split("fit")[1].split("%")[0]) for line in lines if line.startswith("linear")]
+    after = [float(line.split("fit")[1].split("%")[0]) for line in lines if line.startswith("after")]
+    assert "cubic_stiffness" in out.split("Refinement")[1]
+    assert min(after) > 95 and max(before) < 90  # the addition raises the fit substantially
