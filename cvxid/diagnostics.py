@@ -138,6 +138,12 @@ class Residuals:
     velocity: np.ndarray
     input: np.ndarray
 
+    def plot(self, bins: int = 21):
+        """The residual in time and binned against position and velocity."""
+        from .plots import residual_figure
+
+        return residual_figure(self, bins)
+
     def binned(self, against: str = "velocity", bins: int = 21) -> pd.DataFrame:
         """Mean and spread of the residual in bins of the position or the velocity."""
         values = getattr(self, against)
@@ -198,6 +204,14 @@ class Diagnosis:
 
     ranking: pd.DataFrame
     groups: list[list[str]] = field(default_factory=list)
+    residual: np.ndarray | None = None  # the model's (scaled) equation-error residual
+    columns: dict[str, np.ndarray] = field(default_factory=dict)  # orthogonalised candidates
+
+    def plot(self, top: int = 3):
+        """Partial-residual (added-variable) plots of the top candidates."""
+        from .plots import partial_residual_figure
+
+        return partial_residual_figure(self, top)
 
     @property
     def top(self) -> str:
@@ -222,9 +236,13 @@ class Diagnosis:
 
 
 def default_candidates(spec: ModelSpec) -> list[str]:
-    """The catalogue minus what the model already has."""
+    """The catalogue minus what the model already has (``delay``: for exact-delay models)."""
     have = set(spec.column_names)
-    return [name for name, eff in CATALOGUE.items() if eff.build(spec.coordinate).name not in have]
+    exact = spec.delay is not None and spec.delay.exact
+    return [
+        name for name, eff in CATALOGUE.items()
+        if eff.build(spec.coordinate).name not in have and (name != "delay" or exact)
+    ]
 
 
 def _candidate_terms(spec: ModelSpec, candidates: Sequence[str]) -> dict[str, Term]:
@@ -233,6 +251,8 @@ def _candidate_terms(spec: ModelSpec, candidates: Sequence[str]) -> dict[str, Te
         term = resolve_term(name, (spec.coordinate,))
         if term.name in spec.column_names:
             continue
+        if name == "delay" and not (spec.delay is not None and spec.delay.exact):
+            raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
         out[name] = term
     if not out:
         raise CvxidError("no candidate effect is missing from the model; nothing to diagnose")
@@ -288,7 +308,7 @@ def diagnose(
     )
     key = "validation_ratio" if test is not None else "err"
     ranking = ranking.sort_values([key, "err"], ascending=False)
-    return Diagnosis(ranking, _groups(ortho, list(ranking.index)))
+    return Diagnosis(ranking, _groups(ortho, list(ranking.index)), r, ortho)
 
 
 def _groups(ortho: dict[str, np.ndarray], order: list[str]) -> list[list[str]]:
@@ -308,6 +328,8 @@ def _groups(ortho: dict[str, np.ndarray], order: list[str]) -> list[list[str]]:
 
 def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     """``spec`` with a catalogue effect (or a term) added, its sign constraint included."""
+    if name == "delay":
+        raise CvxidError("the delay is not added but estimated again: refit the model (refit() profiles tau)")
     term = resolve_term(name, (spec.coordinate,))
     if term.name in spec.column_names:
         raise CvxidError(f"the model already has {term.name} ({name})")
@@ -397,14 +419,17 @@ def refine(
         if dx.ranking.loc[best, "validation_ratio"] < 1 + min_improvement:
             break
         before = _test_mse(model, test, velocity, window)
-        spec2 = with_effect(model.spec, best)
-        support = [n for n, c in model.coefficients.items() if c != 0.0] + [dx.ranking.loc[best, "term"]]
-        new = refit(spec2, train, support, model.tau, velocity, model.lam, window)
+        support = [n for n, c in model.coefficients.items() if c != 0.0]
+        if best == "delay":  # a wrong delay: estimate it again on the same terms
+            new = refit(model.spec, train, support, None, velocity, model.lam, window)
+        else:
+            spec2 = with_effect(model.spec, best)
+            new = refit(spec2, train, support + [dx.ranking.loc[best, "term"]], model.tau, velocity, model.lam, window)
         after = _test_mse(new, test, velocity, window)
         old_cmp, new_cmp = compare(model, test), compare(new, test)
-        # accept only when the simulation agrees: the k-step-ahead error must fall too
-        # (equation errors alone accepted a spurious term in our hidden-effect trials)
-        if _sim_error(new_cmp) * (1 + min_improvement) > _sim_error(old_cmp):
+        # accept only when a simulation agrees: the free-run or the k-step-ahead error must
+        # fall too (equation errors alone accepted a spurious term in our hidden-effect trials)
+        if _improvement(old_cmp, new_cmp) < 1 + min_improvement:
             break
         group = next(g for g in dx.groups if best in g)
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, before, after,
@@ -413,9 +438,16 @@ def refine(
     return Refinement(model, steps, diagnoses)
 
 
-def _sim_error(cmp: Comparison) -> float:
-    """Relative k-step-ahead simulation error (inf when the simulation diverged)."""
-    return np.inf if cmp.k_step_fit_percent is None else 100.0 - cmp.k_step_fit_percent
+def _improvement(old: Comparison, new: Comparison) -> float:
+    """The larger factor by which the free-run or the k-step-ahead simulation error falls
+    (a diverging simulation has an infinite error)."""
+    def error(fit):
+        return np.inf if fit is None else max(100.0 - fit, 1e-12)
+
+    pairs = ((old.fit_percent, new.fit_percent), (old.k_step_fit_percent, new.k_step_fit_percent))
+    with np.errstate(invalid="ignore"):
+        ratios = np.array([error(a) / error(b) for a, b in pairs])
+    return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))
 
 
 def _test_mse(model: IdentifiedModel, test: Experiment, velocity: str, window: float | None) -> float:

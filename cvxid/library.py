@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator
 
 from .errors import CvxidError
-from .terms import AbsProduct, Constant, Monomial, Sign, Term, parse_term, velocity_symbol
+from .terms import AbsProduct, Constant, DelayedSignal, Monomial, Sign, Term, parse_term, velocity_symbol
 
 
 class Library:
@@ -81,6 +81,12 @@ class Effect:
     build: Callable[[str], Term]
     nonnegative: bool
 
+    def plot(self, coordinate: str = "x"):
+        """The effect's signature: its force against the state it depends on."""
+        from .plots import signature_figure
+
+        return signature_figure(self.name, coordinate)
+
 
 CATALOGUE: dict[str, Effect] = {}
 
@@ -101,6 +107,11 @@ register_effect("linear_stiffness", "linear stiffness, x", lambda c: Monomial({c
 register_effect("quadratic_stiffness", "quadratic stiffness (asymmetry), x^2", lambda c: Monomial({c: 2}))
 register_effect("cubic_stiffness", "cubic (hardening) stiffness, x^3", lambda c: Monomial({c: 3}))
 register_effect("offset", "constant force (offset, gravity, bias)", lambda c: Constant())
+register_effect(
+    "delay",
+    "a change of the delay tau: the delayed signal's time derivative (exact-delay models)",
+    lambda c: DelayedSignal(c, 1),
+)
 
 
 def effect(name: str) -> Effect:

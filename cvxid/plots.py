@@ -72,3 +72,58 @@ def refinement_figure(refinement):
     ax.set_title("adding the missing effects")
     fig.tight_layout()
     return fig
+
+
+def signature_figure(name: str, coordinate: str = "x", span: float = 2.0):
+    """An effect's signature: its force against the state it depends on."""
+    from .library import effect
+
+    eff = effect(name)
+    term = eff.build(coordinate)
+    grid = np.linspace(-span, span, 401)
+    on_velocity = any(s.endswith("'") for s in term.symbols)
+    states = {coordinate: 0.0 * grid, coordinate + "'": 0.0 * grid}
+    states[coordinate + "'" if on_velocity else coordinate] = grid
+    fig, ax = plt.subplots(figsize=(4, 3))
+    ax.plot(grid, np.broadcast_to(term.evaluate(states), grid.shape), "k")
+    ax.axhline(0, color="gray", lw=0.6)
+    ax.axvline(0, color="gray", lw=0.6)
+    ax.set_xlabel(coordinate + "'" if on_velocity else coordinate)
+    ax.set_ylabel(term.name)
+    ax.set_title(f"{name}: {eff.meaning}", fontsize=9)
+    fig.tight_layout()
+    return fig
+
+
+def residual_figure(res, bins: int = 21):
+    """The equation error in time and binned against position and velocity."""
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+    axes[0].plot(res.time, res.residual, "k", lw=0.5)
+    axes[0].set_xlabel("time [s]")
+    axes[0].set_ylabel("equation error (force units)")
+    for ax, against, label in ((axes[1], "position", "x"), (axes[2], "velocity", "x'")):
+        b = res.binned(against, bins)
+        ax.errorbar(b["center"], b["mean"], yerr=b["std"], fmt="ko-", ms=3)
+        ax.axhline(0, color="gray", lw=0.6)
+        ax.set_xlabel(label)
+    fig.tight_layout()
+    return fig
+
+
+def partial_residual_figure(diagnosis, top: int = 3):
+    """Added-variable plots: the model's residual against each top candidate's column,
+    both orthogonalised against the model (a straight line means the effect is missing)."""
+    names = list(diagnosis.ranking.index[:top])
+    fig, axes = plt.subplots(1, len(names), figsize=(4 * len(names), 3.5), squeeze=False)
+    r = diagnosis.residual
+    step = max(1, r.size // 2000)
+    for ax, name in zip(axes[0], names):
+        g = diagnosis.columns[name]
+        ax.plot(g[::step], r[::step], "k.", ms=2)
+        slope = (g @ r) / (g @ g)
+        ax.plot(g[::step], slope * g[::step], "r", lw=1)
+        ax.set_title(f"{name} (ERR {diagnosis.ranking.loc[name, 'err']:.2f})", fontsize=9)
+        ax.set_xlabel(f"{diagnosis.ranking.loc[name, 'term']} (orthogonalised)")
+    axes[0][0].set_ylabel("model residual (orthogonalised)")
+    fig.tight_layout()
+    return fig

@@ -233,10 +233,13 @@ class DelayFamily:
         Ps, ps = [], []
         for transform, base, p, spline, t in self.blocks:
             if exact:
-                delayed = transform.column(spline(t - tau), model.delay.derivative)
+                shifted = spline(t - tau)
                 if model.delay.gain is not None:
-                    p = p + model.delay.gain * delayed
-            Ps.append(np.column_stack([delayed if isinstance(c.term, DelayedSignal) else base[c.name] for c in cols]))
+                    p = p + model.delay.gain * transform.column(shifted, model.delay.derivative)
+            Ps.append(np.column_stack([
+                transform.column(shifted, c.term.derivative) if isinstance(c.term, DelayedSignal) else base[c.name]
+                for c in cols
+            ]))
             ps.append(p)
         return Regression(
             P=np.vstack(Ps),

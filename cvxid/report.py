@@ -25,6 +25,11 @@ def write_report(result, out) -> Path:
     fig.savefig(out / "path.png", dpi=110)
     plt.close(fig)
     figures["path"] = "path.png"
+    if result.diagnosis is not None:
+        fig = result.diagnosis.plot()
+        fig.savefig(out / "diagnosis.png", dpi=110)
+        plt.close(fig)
+        figures["diagnosis"] = "diagnosis.png"
     if result.refinement is not None and result.refinement.steps:
         fig = result.refinement.plot()
         fig.savefig(out / "refinement.png", dpi=110)

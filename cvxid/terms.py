@@ -184,7 +184,7 @@ class DelayedSignal(Term):
         self.coordinate = coordinate
         self.derivative = int(derivative)
         self.name = f"{coordinate}{chr(39) * self.derivative}(t-tau)"
-        self.meaning = "delayed feedback"
+        self.meaning = "delayed feedback" if self.derivative == 0 else "a change of the delay (its time derivative)"
 
     @property
     def symbol(self) -> str:

@@ -107,3 +107,21 @@ def test_with_effect_adds_the_term_and_its_sign_constraint():
         with_effect(spec, "coulomb")
     with pytest.raises(CvxidError, match="unknown term or effect"):
         with_effect(spec, "magic")
+
+
+def test_a_wrong_delay_is_named_and_estimated_again():
+    train, test = experiments(None)
+    right = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    assumed = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    # the same terms with an assumed delay of 0.3 s (truth 0.15 s): least squares at that delay
+    from cvxid.regression import DelayFamily
+    from cvxid.problem import Problem
+    family = DelayFamily(linear_model(), train, "savgol")
+    fit = Problem.from_regression(family.at(0.3), ("x''",)).refit(np.ones(3, bool))
+    assumed = type(right)(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)
+    dx = diagnose(assumed, train, test)
+    assert dx.top == "delay", dx
+    result = refine(assumed, train, test)
+    assert result.steps[0].added == "delay"
+    assert result.steps[0].test_mse_before >= 3 * result.steps[0].test_mse_after
+    assert result.model.tau == pytest.approx(right.tau, abs=1e-3)
