@@ -37,15 +37,18 @@ class AlgebraicOrders:
     m: int
 
     @classmethod
-    def for_derivative_order(cls, highest: int, n: int | None = None, m: int | None = None):
+    def for_derivative_order(
+        cls, highest: int, n: int | None = None, m: int | None = None, keep_initial_conditions: bool = False
+    ):
         """Orders for derivatives up to ``highest``: by default ``n = highest`` (the fewest
         that remove every initial condition) and ``m = n + 1`` (one integration more than
         needed, as in the paper, which filters noise and truncation error: on the paper's
         example it moves the Taylor-3 delay estimate from 0.142 to 0.195); the user's own
-        orders are checked."""
+        orders are checked.  ``keep_initial_conditions`` admits ``n < highest`` (the
+        paper's own choice n = 2 with a third-order Taylor term), for reproducing it only."""
         n = highest if n is None else int(n)
         m = n + 1 if m is None else int(m)
-        if n < highest:
+        if n < highest and not keep_initial_conditions:
             raise CvxidError(
                 f"algebraic order n = {n} keeps initial-condition terms of the derivative of "
                 f"order {highest}; use n >= {highest}"

@@ -74,6 +74,7 @@ class ModelSpec:
     nonnegative: tuple[str, ...] = ()
     names: Mapping[str, str] = field(default_factory=dict)
     orders: tuple[int | None, int | None] = (None, None)
+    keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
 
     def __post_init__(self):
         known = set(self.column_names)
@@ -129,7 +130,7 @@ class ModelSpec:
 
     @property
     def algebraic_orders(self) -> AlgebraicOrders:
-        return AlgebraicOrders.for_derivative_order(self.highest_derivative, *self.orders)
+        return AlgebraicOrders.for_derivative_order(self.highest_derivative, *self.orders, self.keep_initial_conditions)
 
     @property
     def needs_velocity(self) -> bool:
