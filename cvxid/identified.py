@@ -6,14 +6,20 @@ support, and can print its equation, simulate itself and tabulate itself.
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .data import Experiment
+from .errors import CvxidError
 from .model import ModelSpec
 from .simulate import System, simulate
+
+
+SCHEMA = "cvxid.identified/1"
 
 
 @dataclass(frozen=True)
@@ -96,3 +102,104 @@ class IdentifiedModel:
         ]
         lines += [f"  {k} = {v:.6g}" for k, v in self.physical.items()]
         return "\n".join(lines)
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict:
+        """A JSON-ready description (schema ``cvxid.identified/1``); user-defined Python
+        terms cannot be written and are refused."""
+        from .terms import FunctionTerm
+
+        spec = self.spec
+        if any(isinstance(t, FunctionTerm) for t in spec.library):
+            raise CvxidError("a model with user-defined Python terms cannot be saved as JSON")
+        delay = spec.delay
+        return {
+            "schema": SCHEMA,
+            "model": {
+                "coordinate": spec.coordinate,
+                "input": spec.input,
+                "inertia": spec.inertia,
+                "mass": spec.mass,
+                "library": spec.library.names,
+                "delay": None if delay is None else {
+                    "derivative": delay.derivative, "gain": delay.gain, "taylor_order": delay.taylor_order,
+                    "method": delay.method, "tau_min": delay.tau_min, "tau_max": delay.tau_max,
+                    "history": delay.history,
+                },
+                "nonnegative": list(spec.nonnegative),
+                "names": dict(spec.names),
+                "orders": list(spec.orders),
+            },
+            "coefficients": {k: float(v) for k, v in self.coefficients.items()},
+            "lambda": float(self.lam),
+            "tau": None if self.tau is None else float(self.tau),
+        }
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "IdentifiedModel":
+        """Rebuild a model written by :meth:`to_dict`, checking every field."""
+        from .delay import DelayedFeedback
+        from .library import Library
+        from .terms import parse_term
+
+        try:
+            if data.get("schema") != SCHEMA:
+                raise CvxidError(f"not a cvxid model file (schema {data.get('schema')!r}, expected {SCHEMA!r})")
+            m = data["model"]
+            coord = str(m["coordinate"])
+            delay = None
+            if m["delay"] is not None:
+                d = m["delay"]
+                delay = DelayedFeedback(coord, int(d["derivative"]), d["gain"], int(d["taylor_order"]), str(d["method"]),
+                                        float(d["tau_max"]), float(d["tau_min"]), str(d["history"]))
+            spec = ModelSpec(
+                library=Library(parse_term(n, (coord,)) for n in m["library"]),
+                coordinate=coord, input=str(m["input"]), inertia=bool(m["inertia"]), mass=float(m["mass"]),
+                delay=delay, nonnegative=tuple(m["nonnegative"]), names=dict(m["names"]),
+                orders=tuple(None if o is None else int(o) for o in m["orders"]),
+            )
+            coefficients = {str(k): float(v) for k, v in data["coefficients"].items()}
+            tau = None if data["tau"] is None else float(data["tau"])
+            lam = float(data["lambda"])
+        except CvxidError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CvxidError(f"the model file is incomplete or corrupted ({type(exc).__name__}: {exc})") from None
+        unknown = set(coefficients) - set(spec.column_names)
+        if unknown:
+            raise CvxidError(f"the model file has coefficients for unknown columns: {', '.join(sorted(unknown))}")
+        if not all(np.isfinite(v) for v in coefficients.values()):
+            raise CvxidError("the model file has non-finite coefficients")
+        return cls(spec, coefficients, lam, tau=tau)
+
+    def save(self, path) -> None:
+        """Write the model as JSON (never pickle)."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+
+    @classmethod
+    def load(cls, path) -> "IdentifiedModel":
+        """Read a model written by :meth:`save`."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise CvxidError(f"model file not found: {path}") from None
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CvxidError(f"{path}: not a JSON model file ({exc})") from None
+        if not isinstance(data, dict):
+            raise CvxidError(f"{path}: not a JSON model file (a {type(data).__name__} at the top level)")
+        return cls.from_dict(data)
+
+    # ------------------------------------------------------------------ python-control
+    def to_control(self, pade_order: int = 6):
+        """The model as a python-control ``NonlinearIOSystem`` (input f, output x), with
+        the delay as a Padé approximation of ``pade_order``."""
+        from .export import to_nlsys
+
+        return to_nlsys(self, pade_order)
+
+    def linearized_tf(self, pade_order: int = 6):
+        """The linearisation at rest as a python-control transfer function f -> x, the
+        delay as a Padé approximation (for margins and controller design)."""
+        from .export import linearized_tf
+
+        return linearized_tf(self, pade_order)

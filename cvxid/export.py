@@ -1,0 +1,82 @@
+r"""The identified model in python-control.
+
+The delayed feedback :math:`b\,x^{(q)}(t-\tau)` becomes a Padé approximation
+:math:`e^{-s\tau} \approx N(s)/D(s)` (``control.pade``) realised in state space, so the
+model is an ordinary nonlinear system (``control.nlsys``) and its linearisation at rest a
+rational transfer function:
+
+.. math::
+
+    \frac{X(s)}{F(s)} = \frac{1}{m s^2 + c s + k - b\, s^q\, N(s)/D(s)},
+
+with :math:`c = \partial g/\partial \dot x` and :math:`k = \partial g/\partial x` at rest.
+"""
+
+from __future__ import annotations
+
+import control
+import numpy as np
+
+from .errors import CvxidError
+
+
+def _pade(tau: float, order: int):
+    if order < 1:
+        raise CvxidError(f"the Padé order must be at least 1, got {order}")
+    num, den = control.pade(tau, order)
+    return control.tf2ss(control.tf(num, den))
+
+
+def _linear_terms(system) -> tuple[float, float]:
+    """:math:`\\partial g/\\partial x` and :math:`\\partial g/\\partial \\dot x` at rest."""
+    h = 1e-6
+    coord = system.coordinate
+
+    def g(x, v):
+        states = {coord: np.array([x]), coord + "'": np.array([v])}
+        return sum(c * float(np.ravel(t.evaluate(states))[0]) for t, c in zip(system.terms, np.atleast_1d(system.coefficients)))
+
+    return (g(h, 0.0) - g(-h, 0.0)) / (2 * h), (g(0.0, h) - g(0.0, -h)) / (2 * h)
+
+
+def linearized_tf(model, pade_order: int = 6):
+    """Transfer function f -> x of the model linearised at rest (see the module docstring)."""
+    system = model.system()
+    k, c = _linear_terms(system)
+    plant = control.tf([1.0], [float(system.mass), c, k])
+    if not system.gain:
+        return plant
+    num, den = control.pade(float(system.tau), pade_order)
+    delay = control.tf(num, den) * (control.tf([1.0, 0.0], [1.0]) if system.derivative else 1)
+    return control.feedback(plant, float(system.gain) * delay, sign=+1)
+
+
+def to_nlsys(model, pade_order: int = 6):
+    """A ``control.nlsys`` with states (x, x', Padé states), input f and output x."""
+    system = model.system()
+    coord = system.coordinate
+    coefs = np.atleast_1d(system.coefficients)
+    mass, gain = float(system.mass), float(system.gain)
+    pade = _pade(float(system.tau), pade_order) if gain else None
+    npade = 0 if pade is None else pade.nstates
+
+    def g(x, v):
+        states = {coord: np.array([x]), coord + "'": np.array([v])}
+        return sum(c * float(np.ravel(t.evaluate(states))[0]) for t, c in zip(system.terms, coefs))
+
+    def update(t, state, u, params):
+        x, v, z = state[0], state[1], state[2:]
+        f = float(np.ravel(u)[0])
+        feed = 0.0
+        dz = np.zeros(0)
+        if pade is not None:
+            signal = x if system.derivative == 0 else v
+            feed = gain * float((pade.C @ z + pade.D.ravel() * signal)[0])
+            dz = (pade.A @ z + pade.B.ravel() * signal).ravel()
+        a = (f + feed - g(x, v)) / mass
+        return np.concatenate([[v, a], dz])
+
+    return control.nlsys(
+        update, lambda t, state, u, params: state[:1], states=2 + npade, inputs=[model.spec.input],
+        outputs=[coord], name="cvxid_model",
+    )

@@ -1,0 +1,88 @@
+"""Identified models: JSON round trip, corrupted files, python-control export."""
+
+import json
+
+import control
+import numpy as np
+import pytest
+
+from cvxid import CvxidError
+from cvxid.diagnostics import refit
+from cvxid.identified import IdentifiedModel
+from cvxid.simulate import simulate
+
+from .test_diagnostics import experiments, linear_model
+
+
+@pytest.fixture(scope="module")
+def model():
+    train, _ = experiments("cubic_stiffness")
+    spec = linear_model()
+    from cvxid.diagnostics import with_effect
+
+    return refit(with_effect(spec, "cubic_stiffness"), train, ["x''", "x", "x'", "x^3"], None)
+
+
+def test_json_round_trip_simulates_identically(model, tmp_path):
+    path = tmp_path / "model.json"
+    model.save(path)
+    again = IdentifiedModel.load(path)
+    _, test = experiments("cubic_stiffness")
+    a, _ = model.simulate(test, 0.1, 0.0)
+    b, _ = again.simulate(test, 0.1, 0.0)
+    assert np.array_equal(a, b)
+    assert again.equation() == model.equation()
+    assert "pickle" not in path.read_text()
+
+
+@pytest.mark.parametrize(
+    "corrupt, message",
+    [
+        (lambda d: d.update(schema="other/9"), "not a cvxid model file"),
+        (lambda d: d.pop("coefficients"), "incomplete or corrupted"),
+        (lambda d: d["coefficients"].update({"x^9": 1.0}), "unknown columns"),
+        (lambda d: d["model"].update(library=["x", "bogus term!"]), "not a coordinate"),
+        (lambda d: d["model"]["delay"].update(history="yesterday"), "history must be"),
+    ],
+)
+def test_corrupted_model_files_are_named(model, tmp_path, corrupt, message):
+    data = model.to_dict()
+    corrupt(data)
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(data))
+    with pytest.raises(CvxidError, match=message):
+        IdentifiedModel.load(path)
+
+
+def test_non_json_and_missing_files(tmp_path):
+    (tmp_path / "x.json").write_text("{ not json")
+    with pytest.raises(CvxidError, match="not a JSON model file"):
+        IdentifiedModel.load(tmp_path / "x.json")
+    (tmp_path / "y.json").write_text("[1, 2]")
+    with pytest.raises(CvxidError, match="not a JSON model file"):
+        IdentifiedModel.load(tmp_path / "y.json")
+    with pytest.raises(CvxidError, match="not found"):
+        IdentifiedModel.load(tmp_path / "z.json")
+
+
+def test_linearised_step_response_matches_within_the_pade_error(model):
+    # the linear part of the model (the cubic term vanishes at rest) with a long delay,
+    # simulated by cvxid's delay integrator
+    linear = type(model)(model.spec, dict(model.coefficients, **{"x^3": 0.0}), tau=0.3)
+    t = np.linspace(0, 8, 8001)
+    exact, _ = simulate(linear.system(history="initial"), t, lambda s: np.ones_like(s), 0.0, 0.0)
+    errors = []
+    for order in (1, 2, 4, 8):
+        _, y = control.step_response(linear.linearized_tf(order), t)
+        errors.append(float(np.abs(y - exact).max()))
+    assert errors[-1] < 1e-6 * np.abs(exact).max()
+    assert errors[0] > errors[1] > errors[2] > errors[3]  # the gap is the Padé error
+
+
+def test_nonlinear_export_simulates_like_cvxid(model):
+    t = np.linspace(0, 5, 5001)
+    force = 2 * np.sin(3 * t)
+    ours, _ = simulate(model.system(history="initial"), t, force, 0.0, 0.0)
+    nl = model.to_control(8)
+    resp = control.input_output_response(nl, t, force, X0=np.zeros(nl.nstates), solve_ivp_kwargs={"rtol": 1e-9, "atol": 1e-11})
+    assert np.abs(resp.outputs - ours).max() < 1e-4 * np.abs(ours).max()
