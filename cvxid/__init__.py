@@ -7,7 +7,7 @@ The main entry points:
 * :func:`compare`, :func:`residuals`, :func:`diagnose`, :func:`refine` — model checking.
 """
 
-from .data import Experiment, load
+from .data import Experiment, from_frame, load
 from .diagnostics import compare, diagnose, residuals, with_effect
 from .diagnostics import refine as refine_model
 from .errors import CvxidError, CvxidWarning, SolverFailure

@@ -22,7 +22,7 @@ UNIFORM_RTOL = 1e-6
 """Largest relative deviation of a time step from the mean step."""
 
 
-def _as_signal(name: str, values, experiment: str) -> np.ndarray:
+def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> np.ndarray:
     try:
         arr = np.asarray(values, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -36,12 +36,13 @@ def _as_signal(name: str, values, experiment: str) -> np.ndarray:
             f"experiment '{experiment}': signal '{name}' has shape {np.shape(values)}; "
             "give a 1-D array (one value per sample)"
         )
-    bad = ~np.isfinite(arr)
+    bad = np.isinf(arr) | (np.isnan(arr) if not allow_nan else False)
     if bad.any():
         first = int(np.argmax(bad))
         raise CvxidError(
             f"experiment '{experiment}': signal '{name}' has {int(bad.sum())} NaN/inf "
-            f"value(s), the first at sample {first}; remove or repair them before fitting"
+            f"value(s), the first at sample {first}; repair them, or for missing samples (NaN) "
+            "load with gaps = true so that the integrals restart after each gap"
         )
     return arr
 
@@ -69,6 +70,7 @@ class Experiment:
     inputs: Mapping[str, np.ndarray]
     name: str = "experiment"
     velocities: Mapping[str, np.ndarray] = field(default_factory=dict)
+    gaps: bool = False
 
     def __post_init__(self) -> None:
         t = _as_signal("time", self.time, self.name)
@@ -77,7 +79,7 @@ class Experiment:
         signals = {}
         for group in ("outputs", "inputs", "velocities"):
             signals[group] = {
-                str(k): _as_signal(f"{group[:-1]} {k}", v, self.name)
+                str(k): _as_signal(f"{group[:-1]} {k}", v, self.name, allow_nan=self.gaps)
                 for k, v in getattr(self, group).items()
             }
         for group, sigs in signals.items():
@@ -139,6 +141,27 @@ class Experiment:
             )
         return self.inputs[name]
 
+    def segments(self) -> list["Experiment"]:
+        """The gap-free runs of the record (itself when it has no NaN samples); runs too
+        short to use are dropped."""
+        signals = [*self.outputs.values(), *self.inputs.values(), *self.velocities.values()]
+        missing = np.zeros(self.n, bool)
+        for v in signals:
+            missing |= np.isnan(v)
+        if not missing.any():
+            return [self]
+        edges = np.flatnonzero(np.diff(np.r_[1, missing.astype(int), 1]))
+        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= MIN_SAMPLES]
+        if not runs:
+            raise CvxidError(f"experiment '{self.name}': no gap-free run of {MIN_SAMPLES} samples or more")
+        return [
+            Experiment(
+                self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()}, {k: v[a:b] for k, v in self.inputs.items()},
+                name=f"{self.name}[{a}:{b}]", velocities={k: v[a:b] for k, v in self.velocities.items()},
+            )
+            for a, b in runs
+        ]
+
     def window(self, start: float) -> "Experiment":
         """The part of the record from time ``start`` on (integrals restart there)."""
         keep = self.time >= start - 1e-9 * self.dt
@@ -191,7 +214,19 @@ def _mat_columns(path: Path) -> dict[str, np.ndarray]:
     return {k: v for k, v in raw.items() if not k.startswith("__")}
 
 
-READERS = {".csv": (_csv_columns, "column"), ".mat": (_mat_columns, "variable")}
+def _npz_columns(path: Path) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {k: archive[k] for k in archive.files}
+    except Exception as exc:  # numpy raises many types for malformed archives
+        raise CvxidError(f"{path}: cannot be read as a NumPy .npz archive ({exc})") from None
+
+
+READERS = {
+    ".csv": (_csv_columns, "column"),
+    ".mat": (_mat_columns, "variable"),
+    ".npz": (_npz_columns, "array"),
+}
 
 
 def load(
@@ -201,9 +236,10 @@ def load(
     inputs: Mapping[str, str],
     velocities: Mapping[str, str] | None = None,
     name: str | None = None,
+    gaps: bool = False,
 ) -> Experiment:
-    """Read an experiment from a CSV file (header row names the columns) or a MATLAB
-    ``.mat`` file (variables by name), chosen by the suffix.
+    """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
+    file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
 
     ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
     variable names in the file.
@@ -211,15 +247,26 @@ def load(
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:
-        raise CvxidError(f"{path}: unknown data format '{suffix}'; use a .csv or .mat file")
+        raise CvxidError(f"{path}: unknown data format '{suffix}'; use a .csv, .mat or .npz file")
     if not path.is_file():
         raise CvxidError(f"data file not found: {path}")
     reader, what = READERS[suffix]
-    columns = reader(path)
+    return _experiment(reader(path), what, path, time, outputs, inputs, velocities, name or path.stem, gaps)
+
+
+def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],
+               velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False) -> Experiment:
+    """An experiment from a pandas DataFrame, by column names."""
+    columns = {str(c): frame[c].to_numpy() for c in frame.columns}
+    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps)
+
+
+def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps) -> Experiment:
     return Experiment(
-        _pick(columns, time, what, path),
-        {k: _pick(columns, v, what, path) for k, v in outputs.items()},
-        {k: _pick(columns, v, what, path) for k, v in inputs.items()},
-        name=name or path.stem,
-        velocities={k: _pick(columns, v, what, path) for k, v in (velocities or {}).items()},
+        _pick(columns, time, what, source),
+        {k: _pick(columns, v, what, source) for k, v in outputs.items()},
+        {k: _pick(columns, v, what, source) for k, v in inputs.items()},
+        name=name,
+        velocities={k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()},
+        gaps=gaps,
     )

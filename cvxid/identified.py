@@ -74,6 +74,19 @@ class IdentifiedModel:
         ``0.99 x'' + 1.06 x' + … = f + 2 x(t - 0.166)``."""
         return self.system().equation().replace(" = f", f" = {self.spec.input}", 1)
 
+    def equation_latex(self) -> str:
+        """The identified equation in LaTeX."""
+        system = self.system()
+        coord = {"theta": r"\theta", "alpha": r"\alpha"}.get(self.spec.coordinate, self.spec.coordinate)
+        lhs = f"{float(system.mass):.6g}\\,\\ddot{{{coord}}}"
+        for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
+            lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}\\,{term.latex}"
+        rhs = self.spec.input
+        if system.gain:
+            signal = coord if system.derivative == 0 else f"\\dot{{{coord}}}"
+            rhs += f" + {float(system.gain):.6g}\\,{signal}(t - {float(system.tau):.6g})"
+        return f"{lhs} = {rhs}"
+
     def regression_equation(self) -> str:
         """The identified regression, column by column (delay terms unresolved)."""
         parts = [f"{c:+.6g} {n}" for n, c in self.coefficients.items() if c != 0.0]

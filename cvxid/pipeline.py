@@ -64,6 +64,7 @@ class RunResult:
             "schema": RESULT_SCHEMA,
             "name": self.spec.name,
             "equation": self.model.equation(),
+            "equation_latex": self.model.equation_latex(),
             "regression_equation": self.model.regression_equation(),
             "coefficients": {k: float(v) for k, v in self.model.coefficients.items()},
             "physical": {k: float(v) for k, v in phys.items()},

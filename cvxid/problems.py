@@ -153,7 +153,7 @@ class ProblemSpec:
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
-DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate"}
+DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
@@ -389,6 +389,7 @@ def _experiment(spec: ProblemSpec, which: str, table: Table) -> Experiment:
         inputs=_names(table.get("input", model.input), model.input, where, "input"),
         velocities=_names(velocity, model.coordinate, where, "velocity") if velocity else None,
         name=which,
+        gaps=_bool(table, "gaps", where, False),
     )
 
 

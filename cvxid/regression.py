@@ -17,16 +17,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import warnings
+
 import numpy as np
 import pandas as pd
 from scipy.interpolate import CubicSpline
 
 from .algebraic import AlgebraicTransform
 from .data import Experiment
-from .errors import CvxidError
+from .errors import CvxidError, CvxidWarning
 from .estimate import estimate_velocity
 from .model import ModelSpec
 from .terms import DelayedSignal, velocity_symbol
+
+
+RANK_TOL = 1e-10
+"""A scaled column whose QR pivot is below this share of the largest is dependent."""
 
 
 @dataclass(frozen=True)
@@ -119,6 +125,16 @@ class Regression:
             raise CvxidError("the regression target is identically zero: the input carries no signal")
         R = np.linalg.qr(np.column_stack([P / scale, p / tscale]), mode="r")
         k = len(self.names)
+        diag = np.abs(np.diag(R)[:k])
+        dependent = [n for n, d in zip(self.names, diag) if d < RANK_TOL * diag.max()]
+        if dependent:
+            warnings.warn(
+                f"the regression is rank-deficient: column(s) {', '.join(dependent)} are (nearly) "
+                "linear combinations of earlier ones; their coefficients are not identifiable from "
+                "these data (drop them or use richer data)",
+                CvxidWarning,
+                stacklevel=2,
+            )
         return Reduced(R[:k, :k], R[:k, k], float(R[k, k] ** 2), rows, scale, tscale)
 
     def table(self) -> pd.DataFrame:
@@ -190,6 +206,7 @@ class DelayFamily:
     def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | None = None):
         self.model = model
         exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        exps = [segment for e in exps for segment in e.segments()]  # integrals restart after gaps
         self.experiments = exps
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
@@ -205,6 +222,11 @@ class DelayFamily:
                     f"experiment '{e.name}' lasts {e.duration:g} s, too short for delays up to "
                     f"tau_max = {self.start:g} s (it needs at least twice that); lower "
                     "[model.delay] tau_max or use a longer record"
+                )
+            if np.ptp(e.input(model.input)) == 0:
+                raise CvxidError(
+                    f"experiment '{e.name}': input '{model.input}' is constant, so it does not "
+                    "excite the system; identification needs a varying input"
                 )
             states = states_of(model, e, velocity)  # on the whole record: no edge effects per window
             spline = CubicSpline(e.time, e.output(model.coordinate)) if exact else None

@@ -69,3 +69,42 @@ def test_loader_errors(tmp_path):
     junk.write_bytes(b"not a mat file at all")
     with pytest.raises(CvxidError, match="cannot be read as a MATLAB file"):
         load(junk, time="t", outputs={"x": "x"}, inputs={})
+
+
+def test_npz_and_dataframe_loaders(tmp_path):
+    import pandas as pd
+
+    from cvxid import from_frame
+
+    path = tmp_path / "d.npz"
+    np.savez(path, t=T, x=np.sin(T), f=np.cos(T))
+    e = load(path, time="t", outputs={"x": "x"}, inputs={"f": "f"})
+    np.testing.assert_allclose(e.output("x"), np.sin(T))
+    frame = pd.DataFrame({"time": T, "pos": np.sin(T), "u": np.cos(T)})
+    e2 = from_frame(frame, time="time", outputs={"x": "pos"}, inputs={"f": "u"})
+    np.testing.assert_allclose(e2.input("f"), np.cos(T))
+    with pytest.raises(CvxidError, match="no column named 'v'"):
+        from_frame(frame, time="time", outputs={"x": "v"}, inputs={})
+
+
+def test_gaps_split_into_segments_and_restart_the_integrals():
+    from cvxid.delay import DelayedFeedback  # noqa: F401  (model below has no delay)
+    from cvxid.library import Library
+    from cvxid.model import ModelSpec
+    from cvxid.regression import DelayFamily
+    from cvxid.terms import parse_term
+
+    t = np.arange(400) * 0.01
+    x, f = np.sin(1.3 * t), np.cos(0.7 * t)
+    x_gap = x.copy()
+    x_gap[150:160] = np.nan
+    with pytest.raises(CvxidError, match="gaps = true"):
+        Experiment(t, {"x": x_gap}, {"f": f})
+    e = Experiment(t, {"x": x_gap}, {"f": f}, gaps=True)
+    parts = e.segments()
+    assert [p.n for p in parts] == [150, 240]
+    model = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
+    with_gap = DelayFamily(model, e, "savgol").at(None)
+    stacked = DelayFamily(model, parts, "savgol").at(None)
+    np.testing.assert_array_equal(with_gap.P, stacked.P)
+    assert with_gap.shape[0] == 390  # the 10 missing samples are not interpolated

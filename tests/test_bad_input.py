@@ -1,0 +1,67 @@
+"""The README's bad-input table, row by row (rows already covered elsewhere are named)."""
+
+import warnings
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from cvxid import CvxidError, CvxidWarning, Experiment, Problem, SolverFailure
+from cvxid.cli import main
+from cvxid.library import Library
+from cvxid.model import ModelSpec
+from cvxid.regression import DelayFamily, Regression
+from cvxid.terms import parse_term
+
+T = np.arange(500) * 0.01
+MODEL = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
+
+# NaN/inf, unequal lengths, non-increasing/non-uniform time: tests/test_data.py
+# a record shorter than the delay: tests/test_delay.py::test_record_shorter_than_the_delay_is_refused
+# unknown solver or term name: tests/test_problem.py, tests/test_pipeline.py
+# a solver that stops early: tests/test_problem.py::test_solver_that_stops_early_is_an_error_not_zeros
+# a diverging simulation: tests/test_simulate.py, tests/test_diagnostics.py
+# a corrupted JSON model: tests/test_identified.py
+
+
+def test_constant_input_is_refused():
+    e = Experiment(T, {"x": np.sin(T)}, {"f": np.full(T.size, 2.0)})
+    with pytest.raises(CvxidError, match="input 'f' is constant"):
+        DelayFamily(MODEL, e, "savgol")
+
+
+def test_rank_deficient_library_is_named():
+    P = np.column_stack([np.sin(T), np.cos(T), np.sin(T) + 2 * np.cos(T)])
+    reg = Regression(P, np.sin(T) + 0.1 * np.cos(T), ("a", "b", "c"), ("library",) * 3, np.ones(3))
+    with pytest.warns(CvxidWarning, match=r"rank-deficient: column\(s\) c"):
+        reg.reduce()
+
+
+def test_infeasible_constraints_are_an_error(monkeypatch):
+    prob = Problem.from_arrays(np.column_stack([np.sin(T), T]), np.cos(T), ["a", "b"], nonnegative=["a"])
+
+    def infeasible(self, settings):
+        self.cvxpy._status = cp.INFEASIBLE  # what a solver reports for contradictory constraints
+        return None
+
+    monkeypatch.setattr(Problem, "_attempt", infeasible)
+    with pytest.raises(SolverFailure, match="sign constraints cannot all hold together"):
+        prob.solve(0.1)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("[model]\n[data.train.simulate]\nduration = 1e9\ndt = 1e-9\ninput = []\n[truth]\n", "samples; use between"),
+        ("[model]\n[data.train]\nfile = '/etc/passwd'\n", "unknown data format"),
+        ("[model]\n[data.train]\nfile = 'x.csv'\n[fit]\nlambdas = { min = 1, max = 0.1 }\n", "larger than max"),
+        ("[model.library]\norder = 'three'\n[data.train]\nfile = 'x.csv'\n", "must be a number"),
+        ('[model]\n[data.train]\nfile = "x.csv"\n[diagnose]\ncandidates = ["os.system"]\n', "cannot read term"),
+    ],
+)
+def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    assert main(["run", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and __import__("re").search(message, err), err
