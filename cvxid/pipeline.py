@@ -27,6 +27,7 @@ from .problem import Problem
 from .problems import ProblemSpec, load_problem
 from .profile import profile_delay
 from .regression import DelayFamily
+from .robust import huber_refit
 from .selection import OrderSearch, order_search
 
 RESULT_SCHEMA = 1
@@ -229,6 +230,9 @@ def _identify(spec: ProblemSpec) -> RunResult:
         coefs = dict(zip(problem.names, np.where(keep, refit.coefficients, 0.0)))
         validation = test_family.at(tau).subset(model_spec.column_names) if test else None
         tau_info = profile.as_dict()
+    if fit.loss == "huber":
+        robust, _ = huber_refit(family.at(tau), keep, model_spec.nonnegative, fit.solver)
+        coefs = dict(zip(problem.names, np.where(keep, robust.coefficients, 0.0)))
     model = IdentifiedModel(model_spec, {n: float(c) for n, c in coefs.items()}, best.lam, tau=tau)
     if ensemble is not None:
         ensemble.physical = pd.DataFrame(

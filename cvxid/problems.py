@@ -114,6 +114,7 @@ class FitSettings:
     orders: tuple[int, ...] = ()
     refine: str | None = None
     window: float | None = None
+    loss: str = "squared"
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,7 @@ DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine", "window"}
+            "refine", "window", "loss"}
 
 
 def load_problem(path) -> ProblemSpec:
@@ -306,6 +307,7 @@ def _fit(table: Table) -> FitSettings:
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
         window=_number(table, "window", where, positive=True) if "window" in table else None,
+        loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
     )
 
 
