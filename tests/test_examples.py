@@ -42,3 +42,19 @@ def test_silverbox_diagnosis_finds_cubic_stiffness(monkeypatch, tmp_path, capsys
     after = [float(line.split("fit")[1].split("%")[0]) for line in lines if line.startswith("after")]
     assert "cubic_stiffness" in out.split("Refinement")[1]
     assert min(after) > 95 and max(before) < 90  # the addition raises the fit substantially
+
+
+def test_constraints_change_the_answer(monkeypatch, tmp_path, capsys):
+    out = run_example("constraints.py", monkeypatch, tmp_path, capsys)
+    rows = {line.split()[0]: line.split()[1:] for line in out.splitlines()[-6:]}
+    truth, free, signed = (float(v) for v in rows["x'|x'|"])
+    assert free < 0 and signed >= 0  # least squares returns a negative drag; the signs forbid it
+    c_truth, c_free, c_signed = (float(v) for v in rows["x'"])
+    assert abs(c_signed - c_truth) < abs(c_free - c_truth)
+
+
+def test_lambda_path_example(monkeypatch, tmp_path, capsys):
+    out = run_example("lambda_path.py", monkeypatch, tmp_path, capsys)
+    stlsq = out.split("stlsq: Pareto front")[1]
+    assert "min: lambda = 4.94, 7 terms: x'', x, x', x^3, x^2 x', x'^3, x'''" in stlsq
+    assert (tmp_path / "path_lasso.png").is_file() and (tmp_path / "path_stlsq.png").is_file()
