@@ -23,6 +23,12 @@ from .regression import Regression
 from .selection import order_search
 
 __version__ = "0.1.0"
+__all__ = [
+    "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "Library", "ModelSpec", "Path",
+    "Problem", "Regression", "RunResult", "SolverFailure", "compare", "diagnose", "from_frame", "load",
+    "load_problem", "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run",
+    "with_effect",
+]
 
 
 def refine(target, *args, **kwargs):

@@ -31,12 +31,12 @@ from .data import Experiment
 from .errors import CvxidError
 from .estimate import savgol_window
 from .identified import IdentifiedModel
-from .library import CATALOGUE, Library, effect, resolve_term
+from .library import CATALOGUE, effect, resolve_term
 from .model import ModelSpec
 from .problem import Problem
 from .polish import initial_state
 from .regression import DelayFamily
-from .simulate import SimulationDiverged, System, simulate
+from .simulate import SimulationDiverged, simulate
 from .terms import Term
 
 COLLINEAR = 0.9
@@ -162,7 +162,6 @@ class Residuals:
         u = (self.input - self.input.mean()) / max(self.input.std(), 1e-300)
         n = r.size
         rr = np.array([np.mean(r[: n - k] * r[k:]) for k in range(lags + 1)])
-        uu = np.array([np.mean(u[: n - k] * u[k:]) for k in range(lags + 1)])
         ru = np.array([np.mean(r[: n - k] * u[k:]) for k in range(lags + 1)])
         full = min(n - 1, 20 * lags)
         rr_long = np.array([np.mean(r[: n - k] * r[k:]) for k in range(0, full, max(1, full // 400))])
@@ -285,7 +284,6 @@ def diagnose(
         g = g - Q @ (Q.T @ g)
         ortho[name] = g
         err[name] = float((g @ r) ** 2 / max((g @ g) * (r @ r), 1e-300))
-    val_before = val_after = None
     drops = {}
     if test is not None:
         treg = DelayFamily(extended, test, velocity, window).at(model.tau)

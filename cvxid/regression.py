@@ -49,8 +49,6 @@ class Reduced:
     def to_physical(self, scaled: np.ndarray) -> np.ndarray:
         return np.asarray(scaled) * self.target_scale / self.column_scale
 
-    def to_scaled(self, physical: np.ndarray) -> np.ndarray:
-        return np.asarray(physical) * self.column_scale / self.target_scale
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ Jacobian needs.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -283,7 +283,3 @@ def _rk4_kernel(f, mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill,
                     failed = k + 1
                 break
     return X[::stride].copy(), V[::stride].copy(), failed
-
-
-def terms_of(names: Sequence[Term]) -> tuple[Term, ...]:
-    return tuple(names)

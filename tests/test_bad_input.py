@@ -1,7 +1,5 @@
 """The README's bad-input table, row by row (rows already covered elsewhere are named)."""
 
-import warnings
-
 import cvxpy as cp
 import numpy as np
 import pytest

@@ -88,7 +88,6 @@ def test_npz_and_dataframe_loaders(tmp_path):
 
 
 def test_gaps_split_into_segments_and_restart_the_integrals():
-    from cvxid.delay import DelayedFeedback  # noqa: F401  (model below has no delay)
     from cvxid.library import Library
     from cvxid.model import ModelSpec
     from cvxid.regression import DelayFamily

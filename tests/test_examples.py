@@ -1,6 +1,5 @@
 """The examples in examples/ run (small settings) and tell their story."""
 
-import os
 import runpy
 import sys
 

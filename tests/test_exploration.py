@@ -6,7 +6,6 @@ import pytest
 
 from cvxid import CvxidError, Problem
 from cvxid.bootstrap import BootstrapSettings, bootstrap
-from cvxid.path import Path
 from cvxid.pipeline import run
 from cvxid.regression import Regression
 

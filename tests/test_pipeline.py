@@ -4,12 +4,10 @@ import json
 import subprocess
 import sys
 
-import numpy as np
 import pytest
 
 from cvxid.cli import main
 from cvxid.pipeline import run
-from cvxid.problems import load_problem
 
 from .conftest import ROOT, needs_paper_data
 

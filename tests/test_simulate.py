@@ -58,3 +58,15 @@ def test_divergence_is_a_clear_error():
     unstable = System((parse_term("x"),), np.array([-50.0]), 1.0)
     with pytest.raises(SimulationDiverged, match="diverged at t = .* unstable"):
         simulate(unstable, np.arange(20001) * 1e-3, lambda t: 0 * t, 1.0, 0.0)
+
+
+def test_user_terms_run_in_the_python_integrator_like_the_compiled_one():
+    from cvxid.terms import FunctionTerm
+
+    cubic = FunctionTerm("cube", "a user's cubic stiffness", lambda s: s["x"] ** 3, frozenset({"x"}))
+    force = lambda t: 10 * np.sin(4 * t)
+    compiled = System((parse_term("x'"), parse_term("x^3")), np.array([1.0, 2.0]), 1.0, "x", 2.0, 0.2, 0, "zero")
+    python = System((parse_term("x'"), cubic), np.array([1.0, 2.0]), 1.0, "x", 2.0, 0.2, 0, "zero")
+    a, _ = simulate(compiled, T, force, 1.0, 0.0)
+    b, _ = simulate(python, T, force, 1.0, 0.0)
+    np.testing.assert_allclose(a, b, atol=1e-12)
