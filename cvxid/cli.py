@@ -19,9 +19,9 @@ def _run(args) -> int:
     from .report import write_report
 
     result = run(args.spec)
+    path = write_report(result, args.out) if args.out else None  # before printing: a closed pipe loses nothing
     print(result.summary())
-    if args.out:
-        path = write_report(result, args.out)
+    if path:
         print(f"  wrote {path} and figures")
     return 0
 
@@ -54,7 +54,10 @@ def _accuracy(args) -> int:
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="cvxid", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="cvxid",
+        description="Identify nonlinear systems with time delay from data, as convex problems (cvxpy).",
+    )
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="identify the model of a problem spec")
     p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md)")
@@ -78,6 +81,8 @@ def main(argv=None) -> int:
     except KeyboardInterrupt:
         print("cvxid: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # output piped into head, less, …
+        return 0
 
 
 if __name__ == "__main__":  # pragma: no cover
