@@ -13,45 +13,36 @@ from .plots import path_figure
 
 
 def write_report(result, out) -> Path:
-    """Write ``result.json``, ``report.md``, ``path.png`` and ``test_fit.png`` into ``out``."""
+    """Write ``result.json``, ``report.md`` and the figures (``path``, ``test_fit`` and,
+    when the run made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CvxidError(f"cannot create the output folder {out} ({exc.strerror})") from None
     data = result.to_dict()
-    figures = {}
-    fig = path_figure(result.path, result.model.lam)
-    fig.savefig(out / "path.png", dpi=110)
-    plt.close(fig)
-    figures["path"] = "path.png"
-    if result.diagnosis is not None:
-        fig = result.diagnosis.plot()
-        fig.savefig(out / "diagnosis.png", dpi=110)
-        plt.close(fig)
-        figures["diagnosis"] = "diagnosis.png"
-    if result.refinement is not None and result.refinement.steps:
-        fig = result.refinement.plot()
-        fig.savefig(out / "refinement.png", dpi=110)
-        plt.close(fig)
-        figures["refinement"] = "refinement.png"
-    if result.order_search is not None:
-        fig = result.order_search.plot()
-        fig.savefig(out / "orders.png", dpi=110)
-        plt.close(fig)
-        figures["orders"] = "orders.png"
+    plotters = {
+        "path": lambda: path_figure(result.path, result.model.lam),
+        "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
+        "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
+        "orders": result.order_search.plot if result.order_search is not None else None,
+    }
     if result.test is not None:
         cmp = compare(result.model, result.test)
         data["test_fit_percent"] = cmp.fit_percent
         data["test_k_step_fit_percent"] = cmp.k_step_fit_percent
         if cmp.free_run is not None:
-            fig = cmp.plot()
-            fig.savefig(out / "test_fit.png", dpi=110)
-            plt.close(fig)
-            figures["test_fit"] = "test_fit.png"
+            plotters["test_fit"] = cmp.plot
         else:
             result.warnings.append(cmp.message)
             data["warnings"] = result.warnings
+    figures = {}
+    for name, plot in plotters.items():
+        if plot is not None:
+            fig = plot()
+            fig.savefig(out / f"{name}.png", dpi=110)
+            plt.close(fig)
+            figures[name] = f"{name}.png"
     data["figures"] = figures
     (out / "result.json").write_text(json.dumps(data, indent=2, allow_nan=True))
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]

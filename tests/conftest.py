@@ -16,3 +16,15 @@ def rng():
 
 
 needs_paper_data = pytest.mark.skipif(not PAPER_DATA.is_file(), reason="paper dataset absent")
+
+
+def cli_error(tmp_path, capsys, text: str) -> str:
+    """Run ``cvxid run`` on a spec with ``text``; assert exit 2, one line, no traceback."""
+    from cvxid.cli import main
+
+    spec = tmp_path / "bad.toml"
+    spec.write_text(text)
+    assert main(["run", str(spec)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("cvxid: error:") and len(err.strip().splitlines()) == 1 and "Traceback" not in err
+    return err

@@ -1,6 +1,7 @@
 """End to end: specs, the CLI and the paper's data."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -9,7 +10,7 @@ import pytest
 from cvxid.cli import main
 from cvxid.pipeline import run
 
-from .conftest import ROOT, needs_paper_data
+from .conftest import ROOT, cli_error, needs_paper_data
 
 SMALL_SPEC = """
 name = "small"
@@ -95,12 +96,8 @@ def test_cli_writes_result_json(tmp_path):
     ],
 )
 def test_bad_specs_exit_2_with_one_line(tmp_path, capsys, text, message):
-    spec = tmp_path / "bad.toml"
-    spec.write_text(text)
-    assert main(["run", str(spec)]) == 2
-    err = capsys.readouterr().err
-    assert err.startswith("cvxid: error:") and len(err.strip().splitlines()) == 1
-    assert __import__("re").search(message, err), err
+    err = cli_error(tmp_path, capsys, text)
+    assert re.search(message, err), err
 
 
 def test_console_script_has_no_traceback(tmp_path):
