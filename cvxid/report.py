@@ -13,8 +13,9 @@ from .plots import path_figure
 
 
 def write_report(result, out) -> Path:
-    """Write ``result.json``, ``report.md`` and the figures (``path``, ``test_fit`` and,
-    when the run made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
+    """Write ``result.json``, ``report.md``, ``model.json`` (the identified model, for
+    :meth:`IdentifiedModel.load`) and the figures (``path``, ``test_fit`` and, when the run
+    made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -44,6 +45,11 @@ def write_report(result, out) -> Path:
             plt.close(fig)
             figures[name] = f"{name}.png"
     data["figures"] = figures
+    try:
+        result.model.save(out / "model.json")  # reload with IdentifiedModel.load
+        data["model_file"] = "model.json"
+    except CvxidError as exc:  # user-defined Python terms cannot be written
+        result.warnings.append(str(exc))
     (out / "result.json").write_text(json.dumps(data, indent=2, allow_nan=True))
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]
     md += [f"![{k}]({v})" for k, v in figures.items()]

@@ -79,6 +79,10 @@ def test_cli_writes_result_json(tmp_path):
     assert set(data["physical"]) >= {"m", "k1", "k3", "c1", "tau"}
     assert (out / "path.png").is_file() and (out / "test_fit.png").is_file()
     assert data["test_fit_percent"] > 95
+    from cvxid.identified import IdentifiedModel
+
+    saved = IdentifiedModel.load(out / "model.json")
+    assert saved.coefficients == pytest.approx(data["coefficients"])
 
 
 @pytest.mark.parametrize(
