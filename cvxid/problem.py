@@ -75,6 +75,7 @@ class Problem:
         penalties,
         nonnegative=(),
         solver: str = "CLARABEL",
+        ties=(),
     ):
         self.reduced = reduced
         self.names = tuple(names)
@@ -88,6 +89,13 @@ class Problem:
                 f"nonnegative names unknown column(s) {', '.join(unknown)}; columns: {', '.join(self.names)}"
             )
         self.nonnegative = tuple(nonnegative)
+        self.ties = tuple((str(a), str(b), float(f)) for a, b, f in ties)
+        for a, b, f in self.ties:
+            if a not in self.names or b not in self.names or a == b or not np.isfinite(f):
+                raise CvxidError(
+                    f"tie {a} = {f:g} * {b}: both must be distinct columns ({', '.join(self.names)}) "
+                    "and the factor finite"
+                )
         self.solver = str(solver).upper()
         if self.solver not in SOLVERS:
             raise CvxidError(f"unknown solver '{solver}'; use one of {', '.join(SOLVERS)}")
@@ -101,7 +109,8 @@ class Problem:
         # Columns that are neither penalised nor constrained are projected out before the
         # L1 solve (notes/solvers.md): a QR of R with those columns first splits
         # ||R c - r||^2 into a block they can always zero and a block in the others only.
-        free = [i for i in range(k) if self.penalties[i] == 0 and self.names[i] not in self.nonnegative]
+        tied = {n for a, b, _ in self.ties for n in (a, b)}
+        free = [i for i in range(k) if self.penalties[i] == 0 and self.names[i] not in set(self.nonnegative) | tied]
         self._free = np.array(free, dtype=int)
         self._rest = np.array([i for i in range(k) if i not in free], dtype=int)
         Q, Rp = np.linalg.qr(reduced.R[:, np.r_[self._free, self._rest]])
@@ -114,9 +123,15 @@ class Problem:
             cp.multiply(self.penalties[self._rest], self.c)
         )
         index = {self.names[i]: j for j, i in enumerate(self._rest)}
-        self.constraints = {n: self.c[index[n]] >= 0 for n in self.nonnegative}
+        self.constraints = {f"c[{n}] >= 0": self.c[index[n]] >= 0 for n in self.nonnegative}
+        for a, b, f in self.ties:  # physical c_a = f c_b, in scaled units
+            self.constraints[f"c[{a}] = {f:g} c[{b}]"] = self.c[index[a]] == self._tie_factor(a, b, f) * self.c[index[b]]
         self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
         self.regression: Regression | None = None  # the rows behind the factor, when known
+
+    def _tie_factor(self, a: str, b: str, factor: float) -> float:
+        scale = self.reduced.column_scale
+        return factor * scale[self.names.index(a)] / scale[self.names.index(b)]
 
     def _full(self, rest: np.ndarray) -> np.ndarray:
         """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
@@ -129,13 +144,14 @@ class Problem:
 
     # ------------------------------------------------------------------ builders
     @classmethod
-    def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None):
-        problem = cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver)
+    def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None, ties=()):
+        problem = cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver,
+                      ties)
         problem.regression = regression
         return problem
 
     @classmethod
-    def from_arrays(cls, P, p, names, weights=None, nonnegative=(), solver="CLARABEL"):
+    def from_arrays(cls, P, p, names, weights=None, nonnegative=(), solver="CLARABEL", ties=()):
         """A problem from a user's own regressors ``P`` (n × k) and target ``p`` (n)."""
         P = np.asarray(P, dtype=float)
         p = np.asarray(p, dtype=float).ravel()
@@ -148,7 +164,7 @@ class Problem:
             raise CvxidError(f"names must be {P.shape[1]} distinct strings, one per column of P")
         weights = np.ones(P.shape[1]) if weights is None else np.asarray(weights, dtype=float)
         regression = Regression(P, p, tuple(names), tuple("library" for _ in names), weights)
-        return cls.from_regression(regression, nonnegative, solver)
+        return cls.from_regression(regression, nonnegative, solver, ties=ties)
 
     # ------------------------------------------------------------------ solving
     @property
@@ -211,9 +227,8 @@ class Problem:
         status = self.cvxpy.status
         if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
             raise SolverFailure(
-                "the sign constraints cannot all hold together "
-                f"({', '.join(n + ' >= 0' for n in self.nonnegative)}); remove the one that "
-                "contradicts the others"
+                f"the constraints cannot all hold together ({', '.join(self.constraints)}); "
+                "remove the one that contradicts the others"
             )
         if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.c.value is None:
             raise SolverFailure(
@@ -233,7 +248,7 @@ class Problem:
         squares with a linear term, solved exactly; kept only if it keeps the signs and the
         constraints and lowers the objective (interior-point solutions stop short of it)."""
         S = np.flatnonzero(fit.support)
-        if S.size == 0:
+        if S.size == 0 or self.ties:  # (the closed form below does not keep ties)
             return fit
         R, red = self.reduced.R[:, S], self.reduced
         signs = np.sign(fit.scaled[S])
@@ -256,16 +271,39 @@ class Problem:
         """Least squares on ``support`` (plus every unpenalised column), keeping the sign
         constraints: the debiased estimate (scipy's bounded least squares)."""
         mask = np.asarray(support, dtype=bool) | (self.penalties == 0)
+        for a, b, _ in self.ties:  # a tie keeps both of its columns or neither
+            ia, ib = self.names.index(a), self.names.index(b)
+            mask[ia] = mask[ib] = mask[ia] or mask[ib]
         idx = np.flatnonzero(mask)
         lower = np.array([0.0 if self.names[i] in self.nonnegative else -np.inf for i in idx])
         start = time.perf_counter()
-        sol = lsq_linear(self.reduced.R[:, idx], self.reduced.r, bounds=(lower, np.inf), method="bvls")
-        if not sol.success:
-            raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
         scaled = np.zeros(self.k)
-        scaled[idx] = sol.x
+        if self.ties:
+            scaled[idx] = self._tied_least_squares(idx, lower)
+        else:
+            sol = lsq_linear(self.reduced.R[:, idx], self.reduced.r, bounds=(lower, np.inf), method="bvls")
+            if not sol.success:
+                raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
+            scaled[idx] = sol.x
         fit = self._finish(lam, scaled, "optimal", time.perf_counter() - start)
         return fit
+
+    def _tied_least_squares(self, idx: np.ndarray, lower: np.ndarray) -> np.ndarray:
+        """Least squares on columns ``idx`` with the sign bounds and the ties (cvxpy)."""
+        c = cp.Variable(idx.size)
+        where = {self.names[i]: j for j, i in enumerate(idx)}
+        cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
+        cons += [c[where[a]] == self._tie_factor(a, b, f) * c[where[b]] for a, b, f in self.ties]
+        problem = cp.Problem(cp.Minimize(cp.sum_squares(self.reduced.R[:, idx] @ c - self.reduced.r)), cons)
+        try:
+            problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
+        except cp.error.SolverError as exc:
+            raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
+        if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            raise SolverFailure("the sign constraints and the ties cannot all hold together")
+        if problem.status != cp.OPTIMAL:
+            raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
+        return c.value
 
     # ------------------------------------------------------------------ exploration
     def path(self, lambdas, validate=None, folds: int | None = None, estimator="lasso", debias=True):
@@ -296,8 +334,8 @@ class Problem:
             f"{self._free.size} free column(s) projected out, {self._rest.size} in the cvxpy problem",
             f"  lambda = {self.lam.value:g} (cvxpy Parameter), solver {self.solver}",
         ]
-        if self.nonnegative:
-            lines.append("subject to  " + ", ".join(f"c[{n}] >= 0" for n in self.nonnegative))
+        if self.constraints:
+            lines.append("subject to  " + ", ".join(self.constraints))
         lines.append(f"  {'column':<14} {'w_i':>4}  {'scale (c = c~ * s_p / s_i)':>26}")
         for n, w, s in zip(self.names, self.penalties, red.column_scale):
             lines.append(f"  {n:<14} {w:>4g}  {red.target_scale / s:>26.4e}")

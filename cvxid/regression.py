@@ -74,6 +74,31 @@ class Regression:
         (for an exact delay, at the delay ``tau``)."""
         return DelayFamily(model, experiments, velocity).at(tau)
 
+    @classmethod
+    def block(cls, regressions: dict[str, "Regression"]) -> "Regression":
+        """Several equations as one regression: block-diagonal columns named
+        ``"equation:column"``, rows stacked.  Each block is divided by its target's RMS so
+        every equation weighs the same in the joint objective (coefficients are unchanged).
+        With ties (``Problem(..., ties=…)``) coefficients shared across equations are
+        estimated once from all of them."""
+        if not regressions:
+            raise CvxidError("block needs at least one regression")
+        rows = sum(r.shape[0] for r in regressions.values())
+        cols = sum(r.shape[1] for r in regressions.values())
+        P, p = np.zeros((rows, cols)), np.zeros(rows)
+        names, groups, penalties = [], [], []
+        i = j = 0
+        for label, reg in regressions.items():
+            n, k = reg.shape
+            scale = float(np.sqrt(np.mean(reg.p**2))) or 1.0
+            P[i:i + n, j:j + k] = reg.P / scale
+            p[i:i + n] = reg.p / scale
+            names += [f"{label}:{c}" for c in reg.names]
+            groups += list(reg.groups)
+            penalties += list(reg.penalties)
+            i, j = i + n, j + k
+        return cls(P, p, tuple(names), tuple(groups), np.array(penalties), tuple(regressions))
+
     def subset(self, names) -> "Regression":
         """The regression restricted to the named columns (nested libraries share columns)."""
         index = {n: i for i, n in enumerate(self.names)}

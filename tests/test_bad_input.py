@@ -46,7 +46,7 @@ def test_infeasible_constraints_are_an_error(monkeypatch):
         return None
 
     monkeypatch.setattr(Problem, "_attempt", infeasible)
-    with pytest.raises(SolverFailure, match="sign constraints cannot all hold together"):
+    with pytest.raises(SolverFailure, match="constraints cannot all hold together"):
         prob.solve(0.1)
 
 
