@@ -37,7 +37,7 @@ from .problem import Problem
 from .polish import initial_state
 from .regression import DelayFamily
 from .simulate import SimulationDiverged, simulate
-from .terms import Term
+from .terms import DelayedSignal, Term
 
 COLLINEAR = 0.9
 """Candidates whose orthogonalised columns correlate above this form one group."""
@@ -250,8 +250,10 @@ def _candidate_terms(spec: ModelSpec, candidates: Sequence[str]) -> dict[str, Te
         term = resolve_term(name, (spec.coordinate,))
         if term.name in spec.column_names:
             continue
-        if name == "delay" and not (spec.delay is not None and spec.delay.exact):
-            raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
+        if name == "delay":
+            if not (spec.delay is not None and spec.delay.exact):
+                raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
+            term = DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1)  # d/dtau of the feedback
         out[name] = term
     if not out:
         raise CvxidError("no candidate effect is missing from the model; nothing to diagnose")

@@ -50,7 +50,11 @@ class ModelSpec:
     library : Library
         Candidate terms :math:`g_i` (left-hand side).
     coordinate, input : str
-        Names of the measured coordinate and of the input.
+        Names of the measured coordinate (its second derivative is this equation's inertia)
+        and of the input.
+    others : tuple of str
+        In a coupled system, the other measured coordinates whose states the terms and the
+        delayed feedback may read (e.g. the alpha equation of a flexible joint reads theta).
     inertia : bool
         Identify :math:`m` (a column :math:`\\ddot x`); otherwise ``mass`` is known.
     delay : DelayedFeedback, optional
@@ -75,6 +79,7 @@ class ModelSpec:
     names: Mapping[str, str] = field(default_factory=dict)
     orders: tuple[int | None, int | None] = (None, None)
     keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
+    others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
 
     def __post_init__(self):
         known = set(self.column_names)
@@ -85,11 +90,16 @@ class ModelSpec:
                     f"the model; columns: {', '.join(self.column_names)}"
                 )
         for tname in self.names.values():
-            parse_term(tname, (self.coordinate,))  # a readable term (it may join the model later)
+            parse_term(tname, self.coordinates)  # a readable term (it may join the model later)
         if not self.inertia and not self.mass > 0:
             raise CvxidError(f"[model] mass must be positive when inertia = false, got {self.mass}")
 
     # ------------------------------------------------------------------ columns
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        """This equation's coordinate first, then the others it may read."""
+        return (self.coordinate, *self.others)
+
     @property
     def inertia_term(self) -> Derivative:
         return Derivative(self.coordinate, 2)
@@ -115,7 +125,7 @@ class ModelSpec:
     @property
     def delayed_term(self) -> DelayedSignal:
         """The exact delayed signal (its column carries minus the unknown gain)."""
-        return DelayedSignal(self.coordinate, self.delay.derivative)
+        return DelayedSignal(self.delay.coordinate, self.delay.derivative)
 
     @property
     def column_names(self) -> list[str]:
@@ -144,13 +154,13 @@ class ModelSpec:
             self,
             library=library,
             nonnegative=tuple(n for n in self.nonnegative if n in keep),
-            names={k: v for k, v in self.names.items() if parse_term(v, (self.coordinate,)).name in keep},
+            names={k: v for k, v in self.names.items() if parse_term(v, self.coordinates).name in keep},
         )
 
     # ------------------------------------------------------------------ physics
     def _derivative_order(self, name: str) -> int | None:
         """Order d when column ``name`` is :math:`x^{(d)}` (x is order 0, x' order 1)."""
-        term = parse_term(name, (self.coordinate,))
+        term = parse_term(name, self.coordinates)
         if isinstance(term, Derivative):
             return term.order
         if term.name == self.coordinate:
@@ -196,7 +206,7 @@ class ModelSpec:
     def parameter_name(self, term_name: str) -> str:
         """The physical name of a term's coefficient (``names`` in the spec, else the term)."""
         for pname, tname in self.names.items():
-            if parse_term(tname, (self.coordinate,)).name == term_name:
+            if parse_term(tname, self.coordinates).name == term_name:
                 return pname
         return term_name
 

@@ -182,20 +182,22 @@ class Regression:
 
 
 def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[str, np.ndarray]:
-    """Positions and (if any column needs one) velocities of an experiment."""
-    x = experiment.output(model.coordinate)
-    states = {model.coordinate: x}
-    if model.needs_velocity:
+    """Positions of every coordinate the model reads and, where a column needs one, their
+    velocities (measured or estimated)."""
+    states = {c: experiment.output(c) for c in model.coordinates}
+    for coord in model.coordinates:
+        symbol = velocity_symbol(coord)
+        if not any(c.term.needs_velocity and symbol in c.term.symbols for c in model.columns):
+            continue
         if velocity == "measured":
-            if model.coordinate not in experiment.velocities:
+            if coord not in experiment.velocities:
                 raise CvxidError(
                     f"velocity = 'measured' but experiment '{experiment.name}' has no measured "
-                    f"velocity of '{model.coordinate}'; name its column or use an estimator"
+                    f"velocity of '{coord}'; name its column or use an estimator"
                 )
-            v = experiment.velocities[model.coordinate]
+            states[symbol] = experiment.velocities[coord]
         else:
-            v = estimate_velocity(x, experiment.time, velocity)
-        states[velocity_symbol(model.coordinate)] = v
+            states[symbol] = estimate_velocity(states[coord], experiment.time, velocity)
     return states
 
 
@@ -252,7 +254,7 @@ class DelayFamily:
                     "excite the system; identification needs a varying input"
                 )
             states = states_of(model, e, velocity)  # on the whole record: no edge effects per window
-            spline = CubicSpline(e.time, e.output(model.coordinate)) if exact else None
+            spline = CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None
             for rows in _windows(e, window):
                 keep = rows[e.time[rows] >= e.time[rows[0]] + self.start - 1e-9 * e.dt]
                 transform = AlgebraicTransform(e.time[keep], model.algebraic_orders)
