@@ -72,7 +72,12 @@ class IdentifiedModel:
     def equation(self) -> str:
         """The identified equation in physical form, e.g.
         ``0.99 x'' + 1.06 x' + … = f + 2 x(t - 0.166)``."""
-        return self.system().equation().replace(" = f", f" = {self.spec.input}", 1)
+        text = self.system().equation().replace(" = f", f" = {self.spec.input}", 1)
+        delay = self.spec.delay
+        if delay is not None and delay.coordinate != self.spec.coordinate:  # fed back from another coordinate
+            own = self.spec.coordinate + "'" * delay.derivative
+            text = text.replace(f" {own}(t - ", f" {delay.signal}(t - ")
+        return text
 
     def equation_latex(self) -> str:
         """The identified equation in LaTeX."""
