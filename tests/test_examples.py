@@ -57,3 +57,10 @@ def test_lambda_path_example(monkeypatch, tmp_path, capsys):
     stlsq = out.split("stlsq: Pareto front")[1]
     assert "min: lambda = 4.94, 7 terms: x'', x, x', x^3, x^2 x', x'^3, x'''" in stlsq
     assert (tmp_path / "path_lasso.png").is_file() and (tmp_path / "path_stlsq.png").is_file()
+
+
+def test_flexible_joint_example_is_exact_without_noise(monkeypatch, tmp_path, capsys):
+    out = run_example("flexible_joint.py", monkeypatch, tmp_path, capsys, NOISE="0", DURATION="20", WINDOWS="2")
+    lines = out.strip().splitlines()
+    assert len(lines) == 2
+    assert "tau 0.2000" in lines[0] and "k_s 1.300" in lines[0]  # no friction, no noise: exact
