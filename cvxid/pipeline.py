@@ -117,7 +117,8 @@ class RunResult:
             f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
             f"  lambda = {self.model.lam:.3g} ({self.spec.fit.estimator}, solver {self.problem.solver}, "
             f"velocity {self.spec.fit.velocity})",
-            f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})",
+            (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
+             else "  test MSE: no test experiment ([data.test]) to score on"),
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
                   if self.tau["interval"] else ")")] if self.tau else []),

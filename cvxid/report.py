@@ -6,10 +6,24 @@ import json
 from pathlib import Path
 
 import matplotlib.pyplot as plt
+import numpy as np
 
 from .errors import CvxidError
 from .diagnostics import compare
 from .plots import path_figure
+
+
+def _plain(value):
+    """JSON-safe values: NaN and infinities become null (strict JSON has neither)."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, (float, np.floating)):
+        return float(value) if np.isfinite(value) else None
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
 
 
 def write_report(result, out) -> Path:
@@ -50,7 +64,7 @@ def write_report(result, out) -> Path:
         data["model_file"] = "model.json"
     except CvxidError as exc:  # user-defined Python terms cannot be written
         result.warnings.append(str(exc))
-    (out / "result.json").write_text(json.dumps(data, indent=2, allow_nan=True))
+    (out / "result.json").write_text(json.dumps(_plain(data), indent=2, allow_nan=False))
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]
     md += [f"![{k}]({v})" for k, v in figures.items()]
     (out / "report.md").write_text("\n".join(md) + "\n")

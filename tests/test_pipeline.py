@@ -5,6 +5,7 @@ import re
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 
 from cvxid.cli import main
@@ -147,3 +148,14 @@ def test_velocity_auto_keeps_the_least_test_error(tmp_path):
     assert set(scores) == {"observer", "savgol", "spline"}
     assert result.test_mse == pytest.approx(min(scores.values()))
     assert result.to_dict()["velocity_scores"] == scores
+
+
+def test_result_json_is_strict_json_without_a_test_experiment(tmp_path):
+    t = np.arange(400) * 0.01
+    np.savetxt(tmp_path / "d.csv", np.c_[t, np.sin(t), np.cos(2 * t)], delimiter=",", header="t,x,f", comments="")
+    spec = tmp_path / "s.toml"
+    spec.write_text('[data.train]\nfile = "d.csv"\n[model.library]\norder = 1\n')
+    out = tmp_path / "out"
+    assert main(["run", str(spec), "--out", str(out)]) == 0
+    data = json.loads((out / "result.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
+    assert data["test_mse"] is None
