@@ -162,17 +162,6 @@ class Experiment:
             for a, b in runs
         ]
 
-    def window(self, start: float) -> "Experiment":
-        """The part of the record from time ``start`` on (integrals restart there)."""
-        keep = self.time >= start - 1e-9 * self.dt
-        return Experiment(
-            self.time[keep],
-            {k: v[keep] for k, v in self.outputs.items()},
-            {k: v[keep] for k, v in self.inputs.items()},
-            name=self.name,
-            velocities={k: v[keep] for k, v in self.velocities.items()},
-        )
-
     def __repr__(self) -> str:
         parts = [
             f"Experiment '{self.name}': {self.n} samples, t = {self.time[0]:g} … "

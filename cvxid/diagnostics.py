@@ -109,11 +109,7 @@ def k_step_prediction(model: IdentifiedModel, experiment: Experiment, k: int) ->
     smooth = savgol_filter(y, savgol_window(y), 3, mode="interp")
     vel = savgol_filter(y, savgol_window(y), 3, deriv=1, delta=experiment.dt, mode="interp")
     system = model.system()
-    force = experiment.input(spec.input).astype(float)
-    if system.gain:
-        lagged = np.interp(t - system.tau, t, smooth if system.derivative == 0 else vel)
-        lagged[t - t[0] < system.tau] = 0.0 if system.history == "zero" else smooth[0]
-        force = force + system.gain * lagged
+    force = experiment.input(spec.input) + _measured_feedback(system, t, smooth, vel)
     starts = np.arange(0, len(t) - 1, k)
     spline = CubicSpline(t, force)
     local = t[: k + 1] - t[0]
@@ -125,6 +121,15 @@ def k_step_prediction(model: IdentifiedModel, experiment: Experiment, k: int) ->
         stop = min(s + k, len(t) - 1)
         out[s + 1 : stop + 1] = xs[1 : stop - s + 1, j]
     return out
+
+
+def _measured_feedback(system, t: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
+    r"""The delayed feedback :math:`b\,x^{(q)}(t-\tau)` read from (smoothed) measurements."""
+    if not system.gain:
+        return np.zeros_like(t)
+    lagged = np.interp(t - system.tau, t, x if system.derivative == 0 else v)
+    lagged[t - t[0] < system.tau] = 0.0 if system.history == "zero" else x[0]
+    return system.gain * lagged
 
 
 # ---------------------------------------------------------------------- residuals
@@ -188,11 +193,7 @@ def residuals(model: IdentifiedModel, experiment: Experiment) -> Residuals:
     r = system.mass * a - experiment.input(spec.input)
     for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
         r = r + c * term.evaluate(states)
-    if system.gain:
-        t = experiment.time
-        lagged = np.interp(t - system.tau, t, x if system.derivative == 0 else v)
-        lagged[t - t[0] < system.tau] = 0.0 if system.history == "zero" else x[0]
-        r = r - system.gain * lagged
+    r = r - _measured_feedback(system, experiment.time, x, v)
     return Residuals(experiment.time, r, x, v, experiment.input(spec.input))
 
 

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 
 import cvxpy as cp
 import numpy as np
-import pandas as pd
 from scipy.linalg import solve_triangular
 from scipy.optimize import lsq_linear
 
@@ -54,11 +53,6 @@ class Fit:
     seconds: float
     names: tuple[str, ...] = field(default=())
 
-    def series(self) -> pd.Series:
-        return pd.Series(self.coefficients, index=list(self.names), name=f"lambda={self.lam:.3g}")
-
-    def as_dict(self) -> dict[str, float]:
-        return {n: float(c) for n, c in zip(self.names, self.coefficients)}
 
 
 class Problem:

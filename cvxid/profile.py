@@ -14,12 +14,14 @@ an interval far too narrow).
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
+from .errors import CvxidWarning
 from .problem import Problem
 from .regression import DelayFamily
 
@@ -64,7 +66,10 @@ def profile_delay(
     def value(tau: float) -> float:
         tau = float(tau)
         if tau not in cache:
-            problem = Problem.from_regression(family.at(tau), nonnegative)
+            with warnings.catch_warnings():
+                # at tau = 0 an unknown gain's column equals x: a poor candidate, not news
+                warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
+                problem = Problem.from_regression(family.at(tau), nonnegative)
             mask = np.ones(problem.k, bool) if support is None else np.asarray(support, bool)
             cache[tau] = problem.refit(mask).train_mse
         return cache[tau]

@@ -172,13 +172,11 @@ class Regression:
 
     def __repr__(self) -> str:
         n, k = self.shape
-        lines = [f"Regression: {n} rows × {k} columns (experiments: {', '.join(self.experiments)})"]
-        for name, group, pen, rms in zip(
-            self.names, self.groups, self.penalties, np.sqrt(np.mean(self.P**2, axis=0))
-        ):
-            lines.append(f"  {name:<14} {group:<8} weight {pen:g}   rms {rms:.3e}")
-        lines.append(f"  target         rms {np.sqrt(np.mean(self.p ** 2)):.3e}")
-        return "\n".join(lines)
+        return (
+            f"Regression: {n} rows × {k} columns (experiments: {', '.join(self.experiments)}), "
+            f"target rms {np.sqrt(np.mean(self.p ** 2)):.3e}\n"
+            + self.table().to_string(float_format=lambda v: f"{v:.3e}")
+        )
 
 
 def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[str, np.ndarray]:
