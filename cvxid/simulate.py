@@ -106,15 +106,8 @@ def simulate(
     h = dt / substeps
     instant = tau < h  # delays shorter than a step act on the current state (error O(tau))
     steps = (n - 1) * substeps
-    fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
-    if callable(force):
-        f = np.asarray(force(fine), dtype=float)
-    else:
-        samples = np.asarray(force, dtype=float)
-        if samples.shape != t.shape:
-            raise CvxidError(f"force has {samples.size} samples, time has {n}")
-        f = CubicSpline(t, samples)(fine)
-    f = np.broadcast_to(f[:, None] if f.ndim == 1 else f, (fine.size, batch))
+    f = half_steps(force, t, h, steps)
+    f = np.broadcast_to(f[:, None] if f.ndim == 1 else f, (2 * steps + 1, batch))
 
     X = np.zeros((steps + 1, batch))
     V = np.zeros((steps + 1, batch))
@@ -126,22 +119,10 @@ def simulate(
     y_hist = X if q == 0 else V
     d_hist = V if q == 0 else A
 
-    # Delayed times t_k + c h - tau (c = 0, 1/2, 1) sit at a fixed offset and fraction of
-    # the grid for every step k: precompute both once per stage kind.
-    stages = {}
-    for c in (0.0, 0.5, 1.0):
-        u = c - tau / h
-        u = np.where(np.abs(u - np.round(u)) < 1e-9, np.round(u), u)
-        off = np.floor(u).astype(int)
-        theta = u - off
-        t2, t3 = theta * theta, theta**3
-        weights = (2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h)
-        stages[c] = (off, weights)
+    offs, ws = hermite_stages(tau, h)
     fill = X[0] if (system.history == "initial" and q == 0) else np.zeros(batch)
     codes = _term_codes(system)
     if codes is not None:
-        offs = np.array([stages[c][0] for c in (0.0, 0.5, 1.0)])
-        ws = np.array([np.array(stages[c][1]) for c in (0.0, 0.5, 1.0)])
         xs, vs, failed = _rk4_kernel(
             np.ascontiguousarray(f), mass.copy(), coefs, *codes, gain.copy(), q, offs, ws,
             instant.copy(), fill.copy(), delayed, X[0].copy(), V[0].copy(), h, steps, substeps,
@@ -150,20 +131,21 @@ def simulate(
             _diverged(t[0] + failed * h)
         return _shape(system, xs, vs)
 
-    def lagged(k, c):
-        """x^(q)(t_k + c h - tau) from the buffer (or the history before t = 0)."""
-        off, (w0, w1, w2, w3) = stages[c]
-        i = k + off
+    def lagged(k, ci):
+        """x^(q)(t_k + c h - tau), c = (0, 1/2, 1)[ci], from the buffer (or the history
+        before t = 0)."""
+        w0, w1, w2, w3 = ws[ci]
+        i = k + offs[ci]
         # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
-        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (c == 1.0))
+        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2))
         j = np.clip(i, 0, steps - 1)  # (delays shorter than a step never use the value)
         out = w0 * y_hist[j, cols] + w1 * d_hist[j, cols] + w2 * y_hist[j + 1, cols] + w3 * d_hist[j + 1, cols]
         return np.where(early, fill, out)
 
-    def accel(step2, x, v, k, c):
+    def accel(step2, x, v, k, ci):
         rhs = f[step2].copy()
         if delayed:
-            rhs += gain * np.where(instant, x if q == 0 else v, lagged(k, c))
+            rhs += gain * np.where(instant, x if q == 0 else v, lagged(k, ci))
         states = {pos: x, vel: v}
         for term, coef in zip(system.terms, coefs):
             rhs -= coef * term.evaluate(states)
@@ -171,20 +153,50 @@ def simulate(
 
     x, v = X[0].copy(), V[0].copy()
     for k in range(steps):
-        a1 = accel(2 * k, x, v, k, 0.0)
+        a1 = accel(2 * k, x, v, k, 0)
         A[k] = a1
         x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-        a2 = accel(2 * k + 1, x2, v2, k, 0.5)
+        a2 = accel(2 * k + 1, x2, v2, k, 1)
         x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-        a3 = accel(2 * k + 1, x3, v3, k, 0.5)
+        a3 = accel(2 * k + 1, x3, v3, k, 1)
         x4, v4 = x + h * v3, v + h * a3
-        a4 = accel(2 * k + 2, x4, v4, k, 1.0)
+        a4 = accel(2 * k + 2, x4, v4, k, 2)
         x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
         v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
         X[k + 1], V[k + 1] = x, v
         if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
             _diverged(t[0] + (k + 1) * h)
     return _shape(system, X[::substeps], V[::substeps])
+
+
+def half_steps(force: Callable[[np.ndarray], np.ndarray] | np.ndarray, t: np.ndarray, h: float,
+               steps: int) -> np.ndarray:
+    """The force at every RK4 node and midpoint :math:`t_0 + j h/2`: called when it is a
+    function of time, else a cubic spline through its samples on ``t``."""
+    fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
+    if callable(force):
+        return np.asarray(force(fine), dtype=float)
+    samples = np.asarray(force, dtype=float)
+    if samples.shape != t.shape:
+        raise CvxidError(f"force has {samples.size} samples, time has {t.size}")
+    return CubicSpline(t, samples)(fine)
+
+
+def hermite_stages(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where the delayed times :math:`t_k + c h - \\tau` of the RK4 stages
+    (:math:`c = 0, 1/2, 1`) fall on the grid: the node offset ``(3, B)`` from step ``k`` and
+    the cubic Hermite weights ``(3, 4, B)`` of (value, slope, next value, next slope).  Both
+    are the same for every step, so they are computed once."""
+    offs, ws = [], []
+    for c in (0.0, 0.5, 1.0):
+        u = c - np.asarray(tau, float) / h
+        u = np.where(np.abs(u - np.round(u)) < 1e-9, np.round(u), u)
+        off = np.floor(u).astype(int)
+        theta = u - off
+        t2, t3 = theta * theta, theta**3
+        offs.append(off)
+        ws.append(np.array([2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h]))
+    return np.array(offs), np.array(ws)
 
 
 def _diverged(when: float):
@@ -214,7 +226,7 @@ def _term_codes(system: System):
             kinds.append(0)
             px.append(0)
             pv.append(0)
-        elif isinstance(term, (Sign, AbsProduct)) and term.coordinate == pos:
+        elif isinstance(term, (Sign, AbsProduct)) and term.coordinate == pos and not getattr(term, "smoothing", 0):
             kinds.append(1 if isinstance(term, Sign) else 2)
             px.append(0)
             pv.append(0)

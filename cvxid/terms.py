@@ -206,19 +206,26 @@ class DelayedSignal(Term):
 
 
 class Sign(Term):
-    """Coulomb friction :math:`\\operatorname{sign}(\\dot x)`."""
+    """Coulomb friction :math:`\\operatorname{sign}(\\dot x)`.
 
-    def __init__(self, coordinate: str):
+    With ``smoothing`` :math:`v_s > 0` it is :math:`\\tanh(\\dot x / v_s)`: a simulated rig
+    whose friction changes sign smoothly instead of making a fixed-step integrator chatter
+    where the motion sticks (the identified term stays the ideal sign).
+    """
+
+    def __init__(self, coordinate: str, smoothing: float = 0.0):
         self.coordinate = coordinate
+        self.smoothing = float(smoothing)
         self.name = f"sign({velocity_symbol(coordinate)})"
-        self.meaning = "Coulomb (dry) friction"
+        self.meaning = "Coulomb (dry) friction" + (f", smoothed below {smoothing:g}" if smoothing else "")
 
     @property
     def symbols(self) -> frozenset[str]:
         return frozenset([velocity_symbol(self.coordinate)])
 
     def evaluate(self, states: States) -> np.ndarray:
-        return np.sign(states[velocity_symbol(self.coordinate)])
+        v = states[velocity_symbol(self.coordinate)]
+        return np.tanh(v / self.smoothing) if self.smoothing else np.sign(v)
 
     @property
     def latex(self) -> str:

@@ -3,7 +3,8 @@
 import numpy as np
 import pytest
 
-from cvxid.coupled import flexible_joint, flexible_joint_experiment, flexible_joint_specs, identify_coupled
+from cvxid.flexible_joint import flexible_joint, flexible_joint_experiment, flexible_joint_specs
+from cvxid.joint import identify_joint
 
 
 def test_simulated_joint_satisfies_its_equations():
@@ -22,7 +23,7 @@ def test_simulated_joint_satisfies_its_equations():
 def test_joint_identification_recovers_delay_and_stiffness_noise_free():
     system, truth = flexible_joint(coulomb=0.0)
     e = flexible_joint_experiment(system, truth, "sine", duration=20.0)
-    result = identify_coupled(flexible_joint_specs(truth["gain"]), e, ties=[("alpha:theta'", "theta:theta'", -1.0)],
+    result = identify_joint(flexible_joint_specs(truth["gain"]), e, ties=[("alpha:theta'", "theta:theta'", -1.0)],
                               velocity="measured")
     theta, alpha = result.models["theta"].coefficients, result.models["alpha"].coefficients
     assert result.tau == pytest.approx(truth["tau"], rel=5e-3)
