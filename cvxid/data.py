@@ -135,6 +135,10 @@ class Experiment:
         return self.outputs[name]
 
     def input(self, name: str) -> np.ndarray:
+        """The input ``name``; ``"-u"`` is minus the input ``u`` (an equation driven by the
+        negated input, as the link equation of a flexible joint is)."""
+        if name.startswith("-") and name not in self.inputs and name[1:].strip() in self.inputs:
+            return -self.inputs[name[1:].strip()]
         if name not in self.inputs:
             raise CvxidError(
                 f"experiment '{self.name}' has no input '{name}' (it has {sorted(self.inputs)})"

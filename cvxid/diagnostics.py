@@ -371,7 +371,9 @@ class Refinement:
     def plot(self):
         from .plots import refinement_figure
 
-        return refinement_figure(self)
+        steps = self.steps
+        errors = [steps[0].test_mse_before] + [s.test_mse_after for s in steps] if steps else []
+        return refinement_figure(["start"] + [s.added for s in steps], {"test equation-error MSE": errors})
 
     def __repr__(self) -> str:
         if not self.steps:

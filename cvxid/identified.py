@@ -17,6 +17,7 @@ from .data import Experiment
 from .errors import CvxidError
 from .model import ModelSpec
 from .simulate import System, simulate
+from .terms import latex_symbol
 
 
 SCHEMA = "cvxid.identified/1"
@@ -82,14 +83,14 @@ class IdentifiedModel:
     def equation_latex(self) -> str:
         """The identified equation in LaTeX."""
         system = self.system()
-        coord = {"theta": r"\theta", "alpha": r"\alpha"}.get(self.spec.coordinate, self.spec.coordinate)
-        lhs = f"{float(system.mass):.6g}\\,\\ddot{{{coord}}}"
+        accel = latex_symbol(self.spec.coordinate + "''")
+        lhs = f"{float(system.mass):.6g}\\,{accel}"
         for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
             lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}\\,{term.latex}"
         rhs = self.spec.input
         if system.gain:
-            signal = coord if system.derivative == 0 else f"\\dot{{{coord}}}"
-            rhs += f" + {float(system.gain):.6g}\\,{signal}(t - {float(system.tau):.6g})"
+            gain, signal = float(system.gain), latex_symbol(self.spec.delay.signal)
+            rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g}\\,{signal}(t - {float(system.tau):.6g})"
         return f"{lhs} = {rhs}"
 
     def regression_equation(self) -> str:

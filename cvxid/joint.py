@@ -250,8 +250,10 @@ def polish_joint(result: JointResult, experiments: Sequence[Experiment] | Experi
     except np.linalg.LinAlgError:
         se = np.full(theta.size, np.nan)
     polished = problem.result(theta, dict(result.info, method="output_error", rms_before=before, rms_after=after))
-    return JointPolish(polished, dict(zip(problem.names, map(float, theta))), dict(zip(problem.names, map(float, se))),
-                       before, after, int(sol.nfev), time.perf_counter() - start)
+    values = {k: float(v[0]) for k, v in problem.values(theta[None, :]).items()}
+    errors = dict(zip(problem.names, map(float, se)))
+    errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
+    return JointPolish(polished, values, errors, before, after, int(sol.nfev), time.perf_counter() - start)
 
 
 class _PolishProblem:
@@ -297,14 +299,14 @@ class _PolishProblem:
         self.bounds = (np.array(lower), upper)
         self.start = np.clip(self.start, self.bounds[0], self.bounds[1])
 
-    def _values(self, thetas: np.ndarray) -> dict[str, np.ndarray]:
+    def values(self, thetas: np.ndarray) -> dict[str, np.ndarray]:
         values = dict(zip(self.names, thetas.T))
         for a, (b, f) in self.tied.items():
             values[a] = f * values[b]
         return values
 
     def residuals(self, thetas: np.ndarray, stride: int) -> np.ndarray:
-        values = self._values(thetas)
+        values = self.values(thetas)
         C, B = len(self.coordinates), thetas.shape[0]
         mass, gain, coefs = np.ones((C, B)), np.zeros((C, B)), []
         for e, (label, model) in enumerate(self.base.models.items()):
@@ -337,7 +339,7 @@ class _PolishProblem:
         return float(np.sqrt(np.mean(self.residuals(theta[None, :], stride) ** 2)))
 
     def result(self, theta: np.ndarray, info: dict) -> JointResult:
-        values = {k: float(v[0]) for k, v in self._values(theta[None, :]).items()}
+        values = {k: float(v[0]) for k, v in self.values(theta[None, :]).items()}
         coefficients = dict(self.base.coefficients)
         coefficients.update({k: values[k] for k in self.slots})
         return replace(self.base, models=_models(self.base.specs, coefficients, values["tau"], info),

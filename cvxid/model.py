@@ -90,7 +90,7 @@ class ModelSpec:
                     f"the model; columns: {', '.join(self.column_names)}"
                 )
         for tname in self.names.values():
-            parse_term(tname, self.coordinates)  # a readable term (it may join the model later)
+            parse_term(_bare(tname)[1], self.coordinates)  # a readable term (it may join the model later)
         if not self.inertia and not self.mass > 0:
             raise CvxidError(f"[model] mass must be positive when inertia = false, got {self.mass}")
 
@@ -154,7 +154,7 @@ class ModelSpec:
             self,
             library=library,
             nonnegative=tuple(n for n in self.nonnegative if n in keep),
-            names={k: v for k, v in self.names.items() if parse_term(v, self.coordinates).name in keep},
+            names={k: v for k, v in self.names.items() if parse_term(_bare(v)[1], self.coordinates).name in keep},
         )
 
     # ------------------------------------------------------------------ physics
@@ -205,17 +205,24 @@ class ModelSpec:
 
     def parameter_name(self, term_name: str) -> str:
         """The physical name of a term's coefficient (``names`` in the spec, else the term)."""
+        return self.named_parameter(term_name)[0]
+
+    def named_parameter(self, term_name: str) -> tuple[str, float]:
+        """(physical name, sign): a name given as ``"-alpha"`` is minus the coefficient."""
         for pname, tname in self.names.items():
-            if parse_term(tname, self.coordinates).name == term_name:
-                return pname
-        return term_name
+            sign, bare = _bare(tname)
+            if parse_term(bare, self.coordinates).name == term_name:
+                return pname, sign
+        return term_name, 1.0
 
     def physical(self, coefficients: Mapping[str, float], tau: float | None = None) -> dict[str, float]:
         """Physical parameters by name: ``m``, each term's coefficient, ``tau`` (and the
         feedback ``gain`` when it was estimated)."""
         mass, terms, tau, gain = self.physical_terms(coefficients, tau)
         out = {"m": mass}
-        out.update({self.parameter_name(n): v for n, v in terms.items()})
+        for n, v in terms.items():
+            pname, sign = self.named_parameter(n)
+            out[pname] = sign * v
         if tau is not None:
             out["tau"] = tau
         if self.delay and self.delay.gain is None:
@@ -238,3 +245,9 @@ class ModelSpec:
             lines.append(f"  constraints: {', '.join(n + ' >= 0' for n in self.nonnegative)}")
         lines.append(f"  algebraic operation: {self.algebraic_orders}")
         return "\n".join(lines)
+
+
+def _bare(name: str) -> tuple[float, str]:
+    """A physical-name target ``"-alpha"`` as (-1, "alpha"); ``"alpha"`` as (1, "alpha")."""
+    name = name.strip()
+    return (-1.0, name[1:].strip()) if name.startswith("-") else (1.0, name)

@@ -147,16 +147,22 @@ def _records(frame: pd.DataFrame) -> dict:
     return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
 
 
-def run(spec: ProblemSpec | str | FilePath) -> RunResult:
+def run(spec: ProblemSpec | str | FilePath):
     """Identify the model of a problem spec (a :class:`ProblemSpec` or a path to one).
 
     Steps: load or simulate the experiments; for an exact delay, profile the delay on the
     whole library; (optionally) search the library order; sweep lambda and select on the
     test experiment; (optionally) bootstrap; for an exact delay, profile the delay again on
-    the selected support; (optionally) polish by output error.
+    the selected support; (optionally) polish by output error.  A coupled spec
+    (``[[model.equation]]``) runs :func:`cvxid.joint_run.run_joint` and returns its
+    :class:`~cvxid.joint_run.JointRunResult`.
     """
     if not isinstance(spec, ProblemSpec):
-        spec = load_problem(spec)
+        spec = load_problem(spec) if isinstance(spec, (str, FilePath)) else spec
+    if not isinstance(spec, ProblemSpec):  # a coupled spec ([[model.equation]])
+        from .joint_run import run_joint
+
+        return run_joint(spec)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CvxidWarning)

@@ -59,16 +59,16 @@ def order_figure(table, best: int):
     return fig
 
 
-def refinement_figure(refinement):
-    """Test error (and free-run fit) before and after each added effect."""
-    steps = refinement.steps
+def refinement_figure(labels, series: dict):
+    """Errors before and after each added effect: ``labels`` (start, then each effect) and
+    named error series of the same length."""
     fig, ax = plt.subplots(figsize=(6, 4))
-    labels = ["start"] + [s.added for s in steps]
-    errors = [steps[0].test_mse_before] + [s.test_mse_after for s in steps] if steps else []
-    ax.semilogy(range(len(errors)), errors, "ko-")
+    for (name, values), style in zip(series.items(), ("ko-", "rs--", "b^:")):
+        ax.semilogy(range(len(values)), values, style, label=name)
     ax.set_xticks(range(len(labels)))
     ax.set_xticklabels(labels, rotation=20)
-    ax.set_ylabel("test equation-error MSE")
+    ax.set_ylabel("error")
+    ax.legend()
     ax.set_title("adding the missing effects")
     fig.tight_layout()
     return fig

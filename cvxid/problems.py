@@ -173,7 +173,13 @@ def load_problem(path) -> ProblemSpec:
     return parse_problem(raw, path.parent.resolve(), default_name=path.stem)
 
 
-def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
+def parse_problem(raw: Table, folder: Path, default_name: str = "problem"):
+    """A :class:`ProblemSpec`, or a :class:`~cvxid.joint_problems.JointProblemSpec` when the
+    model has ``[[model.equation]]`` tables."""
+    from .joint_problems import is_joint, parse_joint_problem
+
+    if is_joint(raw):
+        return parse_joint_problem(raw, folder, default_name)
     unknown = set(raw) - TOP_KEYS
     if unknown:
         raise CvxidError(
@@ -219,52 +225,56 @@ def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
     )
 
 
-def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
-    where = "model"
+def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> tuple[ModelSpec, tuple | None]:
+    """One equation's model; in a coupled spec ``others`` are the coordinates its terms and
+    its delayed feedback may read."""
     coord = _string(table, "coordinate", where, "x")
+    coords = (coord, *others)
     lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms"})
-    extra = tuple(_strings(lib_t, "extra", "model.library"))
+    extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
     polynomial = None
     if "terms" in lib_t:
-        library = Library(parse_term(t, (coord,)) for t in _strings(lib_t, "terms", "model.library"))
+        library = Library(parse_term(t, coords) for t in _strings(lib_t, "terms", f"{where}.library"))
     else:
-        order = _number(lib_t, "order", "model.library", 3, positive=True, integer=True)
-        polynomial = (order, _bool(lib_t, "cross", "model.library", True), extra)
+        order = _number(lib_t, "order", f"{where}.library", 3, positive=True, integer=True)
+        polynomial = (order, _bool(lib_t, "cross", f"{where}.library", True), extra)
         library = Library.polynomial(order, polynomial[1], coord)
-    library = library + [resolve_term(e, (coord,)) for e in extra]
+    library = library + [resolve_term(e, coords) for e in extra]
     delay = None
     if "delay" in table:
+        dw = f"{where}.delay"
         d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method", "tau_min", "tau_max", "history"})
-        signal = _string(d, "signal", "model.delay", coord)
-        if signal.rstrip("'") != coord or len(signal) - len(coord) > 1:
-            raise CvxidError(f"spec: [model.delay] signal must be '{coord}' or \"{coord}'\", got '{signal}'")
+        signal = _string(d, "signal", dw, coord)
+        if signal.rstrip("'") not in coords or len(signal) - len(signal.rstrip("'")) > 1:
+            choices = " or ".join(f"'{c}' or \"{c}'\"" for c in coords)
+            raise CvxidError(f"spec: [{dw}] signal must be {choices}, got '{signal}'")
         delay = DelayedFeedback(
-            coordinate=coord,
-            derivative=len(signal) - len(coord),
-            gain=_number(d, "gain", "model.delay") if "gain" in d else None,
-            taylor_order=_number(d, "taylor_order", "model.delay", 3, positive=True, integer=True),
-            method=_string(d, "method", "model.delay", "taylor", choices=METHODS),
-            tau_min=_number(d, "tau_min", "model.delay", 0.0),
-            tau_max=_number(d, "tau_max", "model.delay", 0.5, positive=True),
-            history=_string(d, "history", "model.delay", "zero", choices=HISTORIES),
+            coordinate=signal.rstrip("'"),
+            derivative=len(signal) - len(signal.rstrip("'")),
+            gain=_number(d, "gain", dw) if "gain" in d else None,
+            taylor_order=_number(d, "taylor_order", dw, 3, positive=True, integer=True),
+            method=_string(d, "method", dw, "taylor", choices=METHODS),
+            tau_min=_number(d, "tau_min", dw, 0.0),
+            tau_max=_number(d, "tau_max", dw, 0.5, positive=True),
+            history=_string(d, "history", dw, "zero", choices=HISTORIES),
         )
         if delay.exact and "taylor_order" in d:
-            raise CvxidError("spec: [model.delay] taylor_order has no meaning with method = 'exact'; remove it")
+            raise CvxidError(f"spec: [{dw}] taylor_order has no meaning with method = 'exact'; remove it")
     cons = _table(table, "constraints", where, {"nonnegative"})
     names_t = table.get("names", {})
     if not isinstance(names_t, Mapping):
-        raise CvxidError("spec: [model.names] must be a table of parameter = \"term\"")
+        raise CvxidError(f"spec: [{where}.names] must be a table of parameter = \"term\"")
     names = {}
     for k, v in names_t.items():
         if not isinstance(v, str):
-            raise CvxidError(f"spec: [model.names] {k} must be a term name string, got {v!r}")
+            raise CvxidError(f"spec: [{where}.names] {k} must be a term name string, got {v!r}")
         names[k] = v
     alg = _table(table, "algebraic", where, {"n", "m"})
-    nonneg = tuple(parse_term(n, (coord,)).name for n in _strings(cons, "nonnegative", "model.constraints"))
+    nonneg = tuple(parse_term(n, coords).name for n in _strings(cons, "nonnegative", f"{where}.constraints"))
     columns = set(library.names) | {coord + "''"}
     for pname, tname in names.items():
-        if parse_term(tname, (coord,)).name not in columns:
-            raise CvxidError(f"spec: [model.names] {pname} = '{tname}' is not a term of the library")
+        if parse_term(tname.lstrip("- "), coords).name not in columns:
+            raise CvxidError(f"spec: [{where}.names] {pname} = '{tname}' is not a term of the library")
     return ModelSpec(
         library=library,
         coordinate=coord,
@@ -275,9 +285,10 @@ def _model(table: Table) -> tuple[ModelSpec, tuple | None]:
         nonnegative=nonneg,
         names=names,
         orders=(
-            _number(alg, "n", "model.algebraic", integer=True) if "n" in alg else None,
-            _number(alg, "m", "model.algebraic", integer=True) if "m" in alg else None,
+            _number(alg, "n", f"{where}.algebraic", integer=True) if "n" in alg else None,
+            _number(alg, "m", f"{where}.algebraic", integer=True) if "m" in alg else None,
         ),
+        others=tuple(others),
     ), polynomial
 
 
@@ -360,7 +371,8 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
     system = System(tuple(terms), np.array(values), mass, coord, gain, tau, derivative, history)
     physical = {"m": mass}
     for term, value in zip(terms, values):
-        physical[model.parameter_name(term.name)] = value
+        pname, sign = model.named_parameter(term.name)
+        physical[pname] = sign * value
     if "delay" in t:
         physical["tau"] = tau
     return Truth(system, physical)
@@ -397,6 +409,21 @@ def _experiment(spec: ProblemSpec, which: str, table: Table) -> Experiment:
 
 def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
     where = f"data.{which}.simulate"
+    t, force, sx, sf, rng = simulation_setup(sim, where)
+    x, v = simulate(spec.truth.system, t, force, _number(sim, "x0", where, 0.0), _number(sim, "v0", where, 0.0))
+    model = spec.model
+    return Experiment(
+        t,
+        {model.coordinate: x + sx * rng.standard_normal(t.size)},
+        {model.input: force(t) + sf * rng.standard_normal(t.size)},
+        name=which,
+        velocities={model.coordinate: v},  # the simulator's true velocity, for velocity = "measured"
+    )
+
+
+def simulation_setup(sim: Table, where: str):
+    """Time grid, input function, output and input noise levels and the seeded generator
+    of a ``[data.*.simulate]`` table."""
     duration = _number(sim, "duration", where, positive=True)
     dt = _number(sim, "dt", where, positive=True)
     n = int(round(duration / dt)) + 1
@@ -407,17 +434,6 @@ def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
         raise CvxidError(f"spec: [{where}] input must be a list of tables like {{kind = \"sine\", ...}}")
     force = excitation(components, where + ".input")
     noise = _table(sim, "noise", where, {"output", "input"})
-    seed = _number(sim, "seed", where, 0, integer=True)
-    t = np.arange(n) * dt
-    x, v = simulate(spec.truth.system, t, force, _number(sim, "x0", where, 0.0), _number(sim, "v0", where, 0.0))
-    rng = np.random.default_rng(seed)
-    sx = _number(noise, "output", where + ".noise", 0.0)
-    sf = _number(noise, "input", where + ".noise", 0.0)
-    model = spec.model
-    return Experiment(
-        t,
-        {model.coordinate: x + sx * rng.standard_normal(n)},
-        {model.input: force(t) + sf * rng.standard_normal(n)},
-        name=which,
-        velocities={model.coordinate: v},  # the simulator's true velocity, for velocity = "measured"
-    )
+    rng = np.random.default_rng(_number(sim, "seed", where, 0, integer=True))
+    return (np.arange(n) * dt, force, _number(noise, "output", where + ".noise", 0.0),
+            _number(noise, "input", where + ".noise", 0.0), rng)

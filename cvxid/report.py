@@ -13,12 +13,12 @@ from .diagnostics import compare
 from .plots import path_figure
 
 
-def _plain(value):
+def plain(value):
     """JSON-safe values: NaN and infinities become null (strict JSON has neither)."""
     if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
+        return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_plain(v) for v in value]
+        return [plain(v) for v in value]
     if isinstance(value, (float, np.floating)):
         return float(value) if np.isfinite(value) else None
     if isinstance(value, np.integer):
@@ -26,15 +26,23 @@ def _plain(value):
     return value
 
 
-def write_report(result, out) -> Path:
-    """Write ``result.json``, ``report.md``, ``model.json`` (the identified model, for
-    :meth:`IdentifiedModel.load`) and the figures (``path``, ``test_fit`` and, when the run
-    made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
+def prepare_folder(out) -> Path:
+    """The output folder, created if needed (a clear error when it cannot be)."""
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise CvxidError(f"cannot create the output folder {out} ({exc.strerror})") from None
+    return out
+
+
+def write_report(result, out) -> Path:
+    """Write ``result.json``, ``report.md``, ``model.json`` (the identified model, for
+    :meth:`IdentifiedModel.load`) and the figures (``path``, ``test_fit`` and, when the run
+    made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
+    if hasattr(result, "write"):  # a coupled run writes its own report
+        return result.write(out)
+    out = prepare_folder(out)
     data = result.to_dict()
     plotters = {
         "path": lambda: path_figure(result.path, result.model.lam),
@@ -64,7 +72,7 @@ def write_report(result, out) -> Path:
         data["model_file"] = "model.json"
     except CvxidError as exc:  # user-defined Python terms cannot be written
         result.warnings.append(str(exc))
-    (out / "result.json").write_text(json.dumps(_plain(data), indent=2, allow_nan=False))
+    (out / "result.json").write_text(json.dumps(plain(data), indent=2, allow_nan=False))
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]
     md += [f"![{k}]({v})" for k, v in figures.items()]
     (out / "report.md").write_text("\n".join(md) + "\n")

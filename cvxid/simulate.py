@@ -67,7 +67,7 @@ class System:
         gain = float(np.ravel(self.gain)[0])
         if gain:
             s = self.coordinate + "'" * self.derivative
-            rhs += f" + {gain:.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
+            rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
         return f"{lhs} = {rhs}"
 
 

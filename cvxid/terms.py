@@ -64,10 +64,17 @@ class Term:
         return hash(self.name)
 
 
-def _latex_symbol(symbol: str) -> str:
+GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "iota", "kappa", "lambda", "mu",
+         "nu", "xi", "pi", "rho", "sigma", "tau", "upsilon", "phi", "chi", "psi", "omega", "Gamma", "Delta", "Theta",
+         "Lambda", "Xi", "Pi", "Sigma", "Phi", "Psi", "Omega"}
+
+
+def latex_symbol(symbol: str) -> str:
+    """``theta'`` as ``\\dot{\\theta}``: Greek names become letters, one or two primes dots."""
     base = symbol.rstrip("'")
-    base = {"theta": r"\theta", "alpha": r"\alpha"}.get(base, base)
-    return rf"\dot{{{base}}}" if symbol.endswith("'") else base
+    dots = len(symbol) - len(base)
+    base = "\\" + base if base in GREEK else base
+    return {0: base, 1: rf"\dot{{{base}}}", 2: rf"\ddot{{{base}}}"}.get(dots, f"{base}^{{({dots})}}")
 
 
 class Monomial(Term):
@@ -118,7 +125,7 @@ class Monomial(Term):
     @property
     def latex(self) -> str:
         return " ".join(
-            _latex_symbol(s) if p == 1 else f"{_latex_symbol(s)}^{{{p}}}"
+            latex_symbol(s) if p == 1 else f"{latex_symbol(s)}^{{{p}}}"
             for s, p in self.factors.items()
         )
 
@@ -168,7 +175,7 @@ class Derivative(Term):
 
     @property
     def latex(self) -> str:
-        base = _latex_symbol(self.coordinate)
+        base = latex_symbol(self.coordinate)
         return base + "^{" + "\\prime" * self.order + "}" if self.order <= 3 else f"{base}^{{({self.order})}}"
 
 
@@ -229,7 +236,7 @@ class Sign(Term):
 
     @property
     def latex(self) -> str:
-        return rf"\operatorname{{sign}}({_latex_symbol(velocity_symbol(self.coordinate))})"
+        return rf"\operatorname{{sign}}({latex_symbol(velocity_symbol(self.coordinate))})"
 
 
 class AbsProduct(Term):
@@ -251,7 +258,7 @@ class AbsProduct(Term):
 
     @property
     def latex(self) -> str:
-        v = _latex_symbol(velocity_symbol(self.coordinate))
+        v = latex_symbol(velocity_symbol(self.coordinate))
         return rf"{v}|{v}|"
 
 
