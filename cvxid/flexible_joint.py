@@ -78,7 +78,7 @@ def flexible_joint_experiment(system: CoupledSystem, truth: dict, reference: str
     rng = np.random.default_rng(seed)
     outputs = {c: x[c] + noise * rng.standard_normal(t.size) for c in x}
     u = gain * ref(t)
-    return Experiment(t, outputs, {"u": u, "minus_u": -u}, name=reference, velocities=v)
+    return Experiment(t, outputs, {"u": u}, name=reference, velocities=v)
 
 
 def flexible_joint_specs(gain: float, library: Sequence[str] = ("theta'", "alpha", "alpha'"),
@@ -92,4 +92,4 @@ def flexible_joint_specs(gain: float, library: Sequence[str] = ("theta'", "alpha
         lib = Library(parse_term(n, (coord, other)) for n in library)
         return ModelSpec(lib, coordinate=coord, input=inp, delay=delay, nonnegative=(f"{coord}''",), others=(other,))
 
-    return {"theta": spec("theta", "alpha", "u", -gain), "alpha": spec("alpha", "theta", "minus_u", gain)}
+    return {"theta": spec("theta", "alpha", "u", -gain), "alpha": spec("alpha", "theta", "-u", gain)}

@@ -136,12 +136,13 @@ class IdentifiedModel:
             "schema": SCHEMA,
             "model": {
                 "coordinate": spec.coordinate,
+                "others": list(spec.others),
                 "input": spec.input,
                 "inertia": spec.inertia,
                 "mass": spec.mass,
                 "library": spec.library.names,
                 "delay": None if delay is None else {
-                    "derivative": delay.derivative, "gain": delay.gain, "taylor_order": delay.taylor_order,
+                    "coordinate": delay.coordinate, "derivative": delay.derivative, "gain": delay.gain, "taylor_order": delay.taylor_order,
                     "method": delay.method, "tau_min": delay.tau_min, "tau_max": delay.tau_max,
                     "history": delay.history,
                 },
@@ -166,16 +167,17 @@ class IdentifiedModel:
                 raise CvxidError(f"not a cvxid model file (schema {data.get('schema')!r}, expected {SCHEMA!r})")
             m = data["model"]
             coord = str(m["coordinate"])
+            others = tuple(str(o) for o in m.get("others", ()))
             delay = None
             if m["delay"] is not None:
                 d = m["delay"]
-                delay = DelayedFeedback(coord, int(d["derivative"]), d["gain"], int(d["taylor_order"]), str(d["method"]),
+                delay = DelayedFeedback(str(d.get("coordinate", coord)), int(d["derivative"]), d["gain"], int(d["taylor_order"]), str(d["method"]),
                                         float(d["tau_max"]), float(d["tau_min"]), str(d["history"]))
             spec = ModelSpec(
-                library=Library(parse_term(n, (coord,)) for n in m["library"]),
+                library=Library(parse_term(n, (coord, *others)) for n in m["library"]),
                 coordinate=coord, input=str(m["input"]), inertia=bool(m["inertia"]), mass=float(m["mass"]),
                 delay=delay, nonnegative=tuple(m["nonnegative"]), names=dict(m["names"]),
-                orders=tuple(None if o is None else int(o) for o in m["orders"]),
+                orders=tuple(None if o is None else int(o) for o in m["orders"]), others=others,
             )
             coefficients = {str(k): float(v) for k, v in data["coefficients"].items()}
             tau = None if data["tau"] is None else float(data["tau"])

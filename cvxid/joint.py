@@ -19,8 +19,10 @@ stiffness and the inertia are told apart only by the small high-frequency part.
 
 from __future__ import annotations
 
+import json
 import time
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import Sequence
 
 import numpy as np
@@ -40,6 +42,7 @@ from .simulate import SimulationDiverged, half_steps
 from .terms import parse_term
 
 Tie = tuple[str, str, float]
+JOINT_SCHEMA = "cvxid.joint/1"
 
 
 @dataclass(frozen=True)
@@ -106,6 +109,44 @@ class JointResult:
 
     def equations(self) -> list[str]:
         return [m.equation() for m in self.models.values()]
+
+    def to_dict(self) -> dict:
+        """A JSON-ready description (schema ``cvxid.joint/1``): every equation's model
+        (schema ``cvxid.identified/1``), the delay and the ties."""
+        return {"schema": JOINT_SCHEMA, "tau": float(self.tau),
+                "ties": [{"left": a, "right": b, "factor": float(f)} for a, b, f in self.ties],
+                "equations": {label: m.to_dict() for label, m in self.models.items()}}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "JointResult":
+        """Rebuild a joint model written by :meth:`to_dict`, checking every field."""
+        try:
+            if data.get("schema") != JOINT_SCHEMA:
+                raise CvxidError(f"not a cvxid joint model (schema {data.get('schema')!r}, expected {JOINT_SCHEMA!r})")
+            tau = float(data["tau"])
+            ties = tuple((str(t["left"]), str(t["right"]), float(t["factor"])) for t in data["ties"])
+            models = {str(k): IdentifiedModel.from_dict(v) for k, v in data["equations"].items()}
+        except CvxidError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CvxidError(f"the joint model file is incomplete or corrupted ({type(exc).__name__}: {exc})") from None
+        if not np.isfinite(tau) or any(m.tau != tau for m in models.values()):
+            raise CvxidError("the joint model file's delay is not finite or differs between its equations")
+        _check_ties({k: m.spec for k, m in models.items()}, ties)
+        return cls(models, tau, (np.array([tau]), np.array([np.nan])), ties)
+
+    def save(self, path) -> None:
+        """Write the joint model as JSON (never pickle)."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+
+    @classmethod
+    def load(cls, path) -> "JointResult":
+        """Read a joint model written by :meth:`save`."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except (OSError, ValueError) as exc:
+            raise CvxidError(f"cannot read the joint model {path}: {exc}") from None
+        return cls.from_dict(data)
 
     @property
     def _coordinates(self) -> list[str]:

@@ -141,7 +141,8 @@ class JointRunResult:
         return self.summary()
 
     def write(self, out) -> Path:
-        """``result.json``, ``report.md`` and figures (``test_fit``, ``delay_profile``,
+        """``result.json``, ``report.md``, ``model.json`` (the joint model, for
+        :meth:`~cvxid.joint.JointResult.load`) and figures (``test_fit``, ``delay_profile``,
         ``refinement``) in ``out``."""
         from .report import prepare_folder, plain
 
@@ -159,6 +160,8 @@ class JointRunResult:
             plt.close(fig)
             written[name] = f"{name}.png"
         data["figures"] = written
+        self.result.save(out / "model.json")  # reload with cvxid.joint.JointResult.load
+        data["model_file"] = "model.json"
         (out / "result.json").write_text(json.dumps(plain(data), indent=2, allow_nan=False))
         md = [f"# {self.spec.name}", "", "```", self.summary(), "```", ""] + [f"![{k}]({v})" for k, v in written.items()]
         (out / "report.md").write_text("\n".join(md) + "\n")

@@ -240,7 +240,8 @@ class ModelSpec:
             f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",
         ]
         if self.delay:
-            lines.append(f"  delay: {self.delay.method}, order {self.delay.taylor_order}")
+            lines.append(f"  delay: exact, tau in [{self.delay.tau_min:g}, {self.delay.tau_max:g}]" if self.delay.exact
+                         else f"  delay: taylor, order {self.delay.taylor_order}")
         if self.nonnegative:
             lines.append(f"  constraints: {', '.join(n + ' >= 0' for n in self.nonnegative)}")
         lines.append(f"  algebraic operation: {self.algebraic_orders}")
