@@ -113,6 +113,7 @@ class DelayedFeedback:
         With one such column this is the closed form (the paper's rule); with several, a
         small bounded least-squares fit over all of them.
         """
+        pure = {k: v for k, v in pure.items() if k != self.derivative}  # tau^0: the gain, no delay in it
         if not pure:
             raise CvxidError(
                 "the delay cannot be identified: every Taylor column also carries a physical "

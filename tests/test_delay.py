@@ -53,6 +53,16 @@ def test_taylor_tau_fitted_from_several_coefficients():
     assert d.estimate_tau(pure) == pytest.approx(tau, rel=1e-8)
 
 
+def test_taylor_tau_ignores_the_gain_only_column():
+    # a library without x leaves the x column to the delay alone: its coefficient is -gain
+    # whatever tau is, so tau comes from the other pure-delay columns (no division by zero)
+    d = DelayedFeedback("x", 0, 2.0, 3)
+    tau = 0.2
+    assert d.estimate_tau({j: d.contribution(j, tau) for j in (0, 3)}) == pytest.approx(tau, rel=1e-8)
+    with pytest.raises(CvxidError, match="cannot be identified"):
+        d.estimate_tau({0: -2.0})
+
+
 @pytest.mark.parametrize("history", ["zero", "initial"])
 def test_exact_delay_profile_recovers_tau_without_noise(history):
     exp = record(0, 0.0, history=history)

@@ -8,6 +8,7 @@ import pytest
 from cvxid.cli import main
 from cvxid.errors import CvxidError
 from cvxid.joint import JointResult
+from cvxid.pipeline import run
 from cvxid.problems import load_problem, parse_problem
 
 from .conftest import ROOT
@@ -96,3 +97,21 @@ def test_negated_input_and_named_parameters():
     assert (train.input("-u") == -train.input("u")).all()
     assert spec.truth.physical["k_s"] == 1.3  # "-alpha": minus the theta equation's alpha coefficient
     assert spec.truth.physical["alpha:alpha"] == pytest.approx(2.011579)
+
+
+def test_joint_selection_drops_terms_the_rig_does_not_have():
+    # stlsq on the joint lambda path, noise-free 20 s: theta^3 and alpha^3 go, the rest stays
+    raw = _raw()
+    raw.pop("diagnose")
+    raw["fit"] = {"estimator": "stlsq", "lambdas": {"min": 1e-8, "max": 1e-1, "count": 20}, "window": 1.0}
+    for which in ("train", "test"):
+        raw["data"][which]["simulate"].update(duration=20.0, noise={"output": 0.0})
+    for equation in raw["model"]["equation"]:
+        equation["library"]["terms"] += ["theta^3", "alpha^3", "sign(theta')"]
+    result = run(parse_problem(raw, SPEC.parent))
+    support = {k for k, v in result.result.coefficients.items() if v != 0}
+    for label in ("theta", "alpha"):
+        assert {f"{label}:theta'", f"{label}:alpha", f"{label}:alpha'", f"{label}:sign(theta')"} <= support
+        assert not {f"{label}:theta^3", f"{label}:alpha^3"} & support
+    assert result.result.tau == pytest.approx(0.2, rel=0.01)
+    assert result.to_dict()["lambda"] > 0
