@@ -29,6 +29,7 @@ from .profile import profile_delay
 from .regression import DelayFamily
 from .robust import huber_refit
 from .selection import OrderSearch, order_search
+from .stepwise import Stepwise, stepwise_output_error
 
 RESULT_SCHEMA = 1
 
@@ -39,7 +40,7 @@ class RunResult:
 
     spec: ProblemSpec
     model: IdentifiedModel
-    path: Path
+    path: Path | None
     problem: Problem
     train: Experiment
     test: Experiment | None
@@ -54,6 +55,7 @@ class RunResult:
     diagnosis: Diagnosis | None = None
     refinement: Refinement | None = None
     velocity_scores: dict | None = None
+    stepwise: Stepwise | None = None
 
     def table(self) -> pd.DataFrame:
         truth = self.spec.truth.physical if self.spec.truth else None
@@ -100,6 +102,11 @@ class RunResult:
                 "terms": _records(self.bootstrap.summary()),
                 "physical": _records(self.bootstrap.physical_summary()),
             },
+            "stepwise": None if self.stepwise is None else {
+                "history": self.stepwise.history.to_dict(orient="records"),
+                "noise": self.stepwise.noise,
+                "seconds": self.stepwise.seconds,
+            },
             "order_search": None if self.order_search is None else {
                 "best_order": self.order_search.best_order,
                 "table": _records(self.order_search.table),
@@ -131,6 +138,8 @@ class RunResult:
         ]
         if self.order_search is not None:
             lines[-1:-1] = [repr(self.order_search), ""]
+        if self.stepwise is not None:
+            lines[-1:-1] = [repr(self.stepwise), ""]
         if self.diagnosis is not None:
             lines[-1:-1] = [repr(self.diagnosis), ""]
         if self.refinement is not None:
@@ -190,9 +199,13 @@ def _best_velocity(spec: ProblemSpec) -> RunResult:
 
 
 def _identify(spec: ProblemSpec) -> RunResult:
+    fit = spec.fit
+    if fit.estimator == "stepwise_oe" and (fit.orders or fit.bootstrap or spec.diagnose is not None
+                                           or fit.loss != "squared"):
+        raise CvxidError('estimator = "stepwise_oe" selects the terms itself: remove [fit] orders, bootstrap and '
+                         'loss, and [diagnose]')
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
-    fit = spec.fit
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     model_spec = spec.model
     if fit.orders:
@@ -200,6 +213,8 @@ def _identify(spec: ProblemSpec) -> RunResult:
     exact = model_spec.delay is not None and model_spec.delay.exact
     family = DelayFamily(model_spec, train, velocity, fit.window)
     test_family = DelayFamily(model_spec, test, velocity, fit.window) if test else None
+    if fit.estimator == "stepwise_oe":
+        return _stepwise(spec, family, test_family, train, test)
     tau = profile_delay(family, nonnegative=model_spec.nonnegative).estimate if exact else None
     regression = family.at(tau)
     validation = test_family.at(tau) if test else None
@@ -281,6 +296,27 @@ def _identify(spec: ProblemSpec) -> RunResult:
         validation.mse(vector) if validation else float("nan"),
         validation.nmse(vector) if validation else float("nan"),
         0.0, [], ensemble, search, tau_info, polished, diagnosis, refinement,
+    )
+
+
+def _stepwise(spec: ProblemSpec, family: DelayFamily, test_family: DelayFamily | None, train: Experiment,
+              test: Experiment | None) -> RunResult:
+    """``estimator = "stepwise_oe"``: terms chosen by simulation error
+    (:mod:`cvxid.stepwise`), the final model polished at the sample step."""
+    fit = spec.fit
+    jobs = fit.bootstrap.n_jobs if fit.bootstrap else 2
+    search = stepwise_output_error(spec.model, family, train, n_jobs=jobs)
+    model = search.model
+    columns = list(model.spec.column_names)
+    problem = Problem.from_regression(family.at(model.tau).subset(columns), model.spec.nonnegative, fit.solver)
+    vector = np.array([model.coefficients[n] for n in columns])
+    scored = test_family.at(model.tau).subset(columns) if test_family is not None else None
+    estimate = model.tau if model.tau is not None else model.physical.get("tau")
+    tau_info = None if spec.model.delay is None else {"estimate": estimate, "interval": None, "method": "output_error"}
+    return RunResult(
+        spec, model, None, problem, train, test,
+        scored.mse(vector) if scored else float("nan"), scored.nmse(vector) if scored else float("nan"),
+        0.0, [], tau=tau_info, stepwise=search,
     )
 
 

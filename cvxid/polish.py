@@ -20,7 +20,7 @@ Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}`.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import least_squares
@@ -56,9 +56,10 @@ STARTS = 5
 """Delays tried as starting points (the simulation error has local minima in tau)."""
 
 
-def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3) -> PolishResult:
+def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3, final: bool = True,
+           max_iterations: int = 200) -> PolishResult:
     """Output-error polish with several starting delays: each start is fitted on a coarse
-    simulation step, the best is refined at the sample step."""
+    simulation step, the best is refined at the sample step (unless ``final`` is false)."""
     start = time.perf_counter()
     delay = model.spec.delay
     taus = [model.tau] if model.tau is not None else [model.physical.get("tau")]
@@ -69,16 +70,18 @@ def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 
     for tau in taus:
         trial = model if tau is None else _with_tau(model, tau)
         try:
-            fit = output_error(trial, experiment, step=coarse_step, max_iterations=200)
+            fit = output_error(trial, experiment, step=coarse_step, max_iterations=max_iterations)
         except CvxidError:
             continue
         if best is None or fit.rms_after < best.rms_after:
             best = fit
     if best is None:
         raise CvxidError("the output-error polish failed from every starting delay (diverging simulations)")
-    final = output_error(best.model, experiment, best.x0, best.v0, step=experiment.dt, max_iterations=50)
-    return PolishResult(final.model, final.parameters, final.standard_errors, output_rms(model, experiment),
-                      final.rms_after, final.x0, final.v0, final.iterations, time.perf_counter() - start)
+    if not final:
+        return replace(best, rms_before=output_rms(model, experiment), seconds=time.perf_counter() - start)
+    last = output_error(best.model, experiment, best.x0, best.v0, step=experiment.dt, max_iterations=50)
+    return PolishResult(last.model, last.parameters, last.standard_errors, output_rms(model, experiment),
+                        last.rms_after, last.x0, last.v0, last.iterations, time.perf_counter() - start)
 
 
 def output_rms(model: IdentifiedModel, experiment: Experiment) -> float:

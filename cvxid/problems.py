@@ -308,7 +308,7 @@ def _fit(table: Table) -> FitSettings:
     if solver not in SOLVERS:
         raise CvxidError(f"spec: [fit] solver must be one of {', '.join(SOLVERS)}, got '{solver}'")
     return FitSettings(
-        estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq")),
+        estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "stepwise_oe")),
         lambdas=lambdas,
         velocity=velocity,
         solver=solver,

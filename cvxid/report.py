@@ -45,7 +45,7 @@ def write_report(result, out) -> Path:
     out = prepare_folder(out)
     data = result.to_dict()
     plotters = {
-        "path": lambda: path_figure(result.path, result.model.lam),
+        "path": (lambda: path_figure(result.path, result.model.lam)) if result.path is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
         "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
         "orders": result.order_search.plot if result.order_search is not None else None,

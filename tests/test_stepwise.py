@@ -1,0 +1,38 @@
+"""Structure selection by simulation error (`estimator = "stepwise_oe"`)."""
+
+import tomllib
+
+import pytest
+
+from cvxid import CvxidError
+from cvxid.pipeline import run
+from cvxid.problems import parse_problem
+
+from .conftest import ROOT
+
+
+def _hidden_friction(**fit):
+    raw = tomllib.loads((ROOT / "problems" / "hidden_friction.toml").read_text())
+    raw.pop("diagnose")
+    raw["model"]["library"] = {"terms": ["x", "x'", "sign(x')", "x^3", "x'^3", "x^2"]}
+    raw["fit"] = {"estimator": "stepwise_oe", **fit}
+    return parse_problem(raw, ROOT / "problems")
+
+
+@pytest.mark.slow
+def test_stepwise_picks_the_friction_and_nothing_else():
+    result = run(_hidden_friction())
+    assert set(result.model.spec.library.names) == {"x", "x'", "sign(x')"}
+    physical = result.model.physical
+    assert physical["sign(x')"] == pytest.approx(0.8, rel=0.02)
+    assert physical["k"] == pytest.approx(6.0, rel=0.01) and physical["tau"] == pytest.approx(0.15, rel=0.02)
+    history = result.stepwise.history
+    assert list(history["action"])[:2] == ["start", "add"] and history["term"][1] == "sign(x')"
+    assert history["rms"].iloc[-1] < 0.1 * history["rms"].iloc[0]  # the simulation error falls
+    assert result.to_dict()["stepwise"]["history"][1]["term"] == "sign(x')"
+
+
+def test_stepwise_refuses_settings_it_replaces():
+    raw_spec = _hidden_friction(orders={"min": 1, "max": 3})
+    with pytest.raises(CvxidError, match='"stepwise_oe" selects the terms itself'):
+        run(raw_spec)
