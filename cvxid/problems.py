@@ -269,7 +269,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         if not isinstance(v, str):
             raise CvxidError(f"spec: [{where}.names] {k} must be a term name string, got {v!r}")
         names[k] = v
-    alg = _table(table, "algebraic", where, {"n", "m"})
+    alg = _table(table, "algebraic", where, {"n", "m", "keep_initial_conditions"})
     nonneg = tuple(parse_term(n, coords).name for n in _strings(cons, "nonnegative", f"{where}.constraints"))
     columns = set(library.names) | {coord + "''"}
     for pname, tname in names.items():
@@ -288,6 +288,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             _number(alg, "n", f"{where}.algebraic", integer=True) if "n" in alg else None,
             _number(alg, "m", f"{where}.algebraic", integer=True) if "m" in alg else None,
         ),
+        keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
         others=tuple(others),
     ), polynomial
 
