@@ -13,7 +13,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Mapping
 
-import numpy as np
 
 from .coupled import CoupledSystem, Equation, simulate_coupled
 from .data import Experiment, load
@@ -22,8 +21,8 @@ from .estimate import ESTIMATORS
 from .library import resolve_term
 from .model import ModelSpec
 from .problems import (
-    DATA_KEYS, SIM_KEYS, DiagnoseSettings, FitSettings, Table, _bool, _fit, _model, _names, _number, _string,
-    _strings, _table, simulation_setup,
+    SIM_KEYS, DiagnoseSettings, FitSettings, Table, _bool, _fit, _model, _names, _number, _string, _strings,
+    _table, data_sections, simulation_setup,
 )
 from .simulate import HISTORIES
 from .terms import Sign
@@ -109,13 +108,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     if fit.velocity not in ESTIMATORS + ("measured",):
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)} or "
                          f"'measured', got '{fit.velocity}'")
-    data_t = _table(raw, "data", "", {"train", "test"}, required=True)
-    data = {k: _table(data_t, k, "data", DATA_KEYS) for k in data_t}
-    if "train" not in data:
-        raise CvxidError("spec: missing section [data.train]")
-    for which, table in data.items():
-        if ("file" in table) == ("simulate" in table):
-            raise CvxidError(f"spec: [data.{which}] needs exactly one of 'file' or a [data.{which}.simulate] table")
+    data = data_sections(raw)
     truth = _truth(raw, equations) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section with [[truth.equation]] tables")

@@ -188,6 +188,17 @@ def parse_problem(raw: Table, folder: Path, default_name: str = "problem"):
     name = _string(raw, "name", "", default_name)
     model, polynomial = _model(_table(raw, "model", "", MODEL_KEYS, required=True))
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
+    data = data_sections(raw)
+    truth = _truth(raw, model) if "truth" in raw else None
+    if truth is None and any("simulate" in t for t in data.values()):
+        raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
+    diag = _diagnose(raw, model) if "diagnose" in raw else None
+    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial, diag)
+
+
+def data_sections(raw: Table) -> dict[str, dict]:
+    """The checked ``[data.train]`` (required) and ``[data.test]`` tables: each a file or a
+    simulation."""
     data_table = _table(raw, "data", "", {"train", "test"}, required=True)
     data = {k: _table(data_table, k, "data", DATA_KEYS) for k in data_table}
     if "train" not in data:
@@ -195,11 +206,7 @@ def parse_problem(raw: Table, folder: Path, default_name: str = "problem"):
     for which, table in data.items():
         if ("file" in table) == ("simulate" in table):
             raise CvxidError(f"spec: [data.{which}] needs exactly one of 'file' or a [data.{which}.simulate] table")
-    truth = _truth(raw, model) if "truth" in raw else None
-    if truth is None and any("simulate" in t for t in data.values()):
-        raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
-    diag = _diagnose(raw, model) if "diagnose" in raw else None
-    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial, diag)
+    return data
 
 
 @dataclass(frozen=True)

@@ -86,4 +86,4 @@ def test_flexible_joint_example_accuracy_table(monkeypatch, tmp_path, capsys):
     added, tau_ee, ks_ee, tau, k_s = row[1], *map(float, row[2:6])
     assert added == "coulomb(theta)"
     assert abs(tau) < 1.0 and abs(k_s) < 1.0  # %, the output-error estimate (criterion: 5 %)
-    assert abs(k_s) < abs(ks_ee)  # the polish improves on the equation-error estimate
+    assert abs(k_s) < abs(ks_ee) and abs(tau) < abs(tau_ee)  # the polish improves on the equation error
