@@ -68,7 +68,7 @@ def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 
     taus = [t for t in taus if t is not None] or [None]
     best = None
     for tau in taus:
-        trial = model if tau is None else _with_tau(model, tau)
+        trial = model if tau is None else with_tau(model, tau)
         try:
             fit = output_error(trial, experiment, step=coarse_step, max_iterations=max_iterations)
         except CvxidError:
@@ -105,7 +105,9 @@ def initial_state(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
             float(savgol_filter(y, w, 3, deriv=1, delta=dt, mode="interp")[0]))
 
 
-def _with_tau(model: IdentifiedModel, tau: float) -> IdentifiedModel:
+def with_tau(model: IdentifiedModel, tau: float) -> IdentifiedModel:
+    """``model`` with its physical parameters kept and the delay set to ``tau`` (a Taylor
+    model's delay shares rewritten into its columns)."""
     system = model.system()
     params = {model.spec.parameter_name(t.name): c for t, c in zip(system.terms, np.atleast_1d(system.coefficients))}
     params["m"] = float(system.mass)

@@ -42,7 +42,7 @@ from .estimate import noise_level
 from .identified import IdentifiedModel
 from .library import Library
 from .model import ModelSpec
-from .polish import _with_tau, output_error, polish
+from .polish import with_tau, output_error, polish
 from .problem import Problem
 from .progress import progress
 from .profile import profile_delay
@@ -82,7 +82,7 @@ def _start(spec: ModelSpec, regression: Regression, terms: Sequence[str], tau: f
     if spec.delay is not None and not exact and tau is not None:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CvxidWarning)
-            model = _with_tau(model, tau)
+            model = with_tau(model, tau)
     return model
 
 
