@@ -47,6 +47,12 @@ class CoupledSystem:
     tau: float
     history: str = "zero"
 
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Coefficients ``(T, 1)``, inertias and delay gains ``(C, 1)``: a batch of one for
+        :func:`integrate_coupled`."""
+        return (np.concatenate([eq.coefficients for eq in self.equations])[:, None],
+                np.array([[eq.mass] for eq in self.equations]), np.array([[eq.delay_gain] for eq in self.equations]))
+
 
 def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Callable[[np.ndarray], np.ndarray] | np.ndarray,
                      x0: dict, v0: dict) -> tuple[dict, dict]:
@@ -60,9 +66,7 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Callable[[n
         raise CvxidError(f"the delayed coordinate {system.delayed!r} is not one of {coords}")
     f = half_steps(force, t, float(t[1] - t[0]), t.size - 1)
     forces = f[:, None] * np.array([eq.input_gain for eq in system.equations])[None, :]
-    coefs = np.concatenate([eq.coefficients for eq in system.equations])[:, None]
-    X, V = integrate_coupled(system, t, forces, coefs, np.array([[eq.mass] for eq in system.equations]),
-                             np.array([[eq.delay_gain] for eq in system.equations]), np.array([system.tau]),
+    X, V = integrate_coupled(system, t, forces, *system.arrays(), np.array([system.tau]),
                              np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]))
     return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
 

@@ -16,7 +16,9 @@ import numpy as np
 
 from .coupled import CoupledSystem, Equation, simulate_coupled
 from .data import Experiment
+from .delay import DelayedFeedback
 from .errors import CvxidError
+from .library import Library
 from .model import ModelSpec
 from .terms import Sign, parse_term
 
@@ -84,9 +86,6 @@ def flexible_joint_experiment(system: CoupledSystem, truth: dict, reference: str
 def flexible_joint_specs(gain: float, library: Sequence[str] = ("theta'", "alpha", "alpha'"),
                          tau_max: float = 0.5) -> dict[str, ModelSpec]:
     """The two equations' model specs (exact shared delay of theta, known gain)."""
-    from .delay import DelayedFeedback
-    from .library import Library
-
     def spec(coord, other, inp, g):
         delay = DelayedFeedback("theta", 0, g, method="exact", tau_max=tau_max)
         lib = Library(parse_term(n, (coord, other)) for n in library)

@@ -84,10 +84,8 @@ class JointResult:
         initial = initial or {c: initial_state(t, experiment.output(c)) for c in self._coordinates}
         x0 = np.array([[initial[c][0]] for c in self._coordinates])
         v0 = np.array([[initial[c][1]] for c in self._coordinates])
-        coefs = np.concatenate([eq.coefficients for eq in system.equations])[:, None]
-        X, _ = integrate_coupled(system, t, joint_forces(self.specs, experiment, t), coefs,
-                                 np.array([[eq.mass] for eq in system.equations]),
-                                 np.array([[eq.delay_gain] for eq in system.equations]), np.array([self.tau]), x0, v0)
+        X, _ = integrate_coupled(system, t, joint_forces(self.specs, experiment, t), *system.arrays(),
+                                 np.array([self.tau]), x0, v0)
         return {c: X[:, j, 0] for j, c in enumerate(self._coordinates)}
 
     def compare(self, experiment: Experiment) -> pd.DataFrame:
@@ -211,6 +209,21 @@ class JointRegression:
         problem = self.problem(tau)
         return problem.refit(np.ones(problem.k, bool)).train_mse
 
+    def identify(self, grid: int = 41) -> JointResult:
+        """Least squares of every equation, the delay profiled on the joint optimal value."""
+        lo, hi = self.bounds
+        taus = np.linspace(lo, hi, grid)
+        values = np.array([self.value(t) for t in taus])
+        i = int(np.argmin(values))
+        best = minimize_scalar(self.value, bounds=(taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]),
+                               method="bounded", options={"xatol": 1e-6 * hi})
+        tau = float(best.x) if best.fun <= values[i] else float(taus[i])
+        problem = self.problem(tau)
+        fit = problem.refit(np.ones(problem.k, bool))
+        coefficients = dict(zip(problem.names, map(float, fit.coefficients)))
+        info = {"method": "equation_error", "train_mse": fit.train_mse}
+        return JointResult(_models(self.specs, coefficients, tau, info), tau, (taus, values), self.ties, dict(info))
+
 
 def identify_joint(specs: dict[str, ModelSpec], experiments: Sequence[Experiment] | Experiment,
                    ties: Sequence[Tie] = (), velocity: str = "savgol", grid: int = 41,
@@ -218,19 +231,7 @@ def identify_joint(specs: dict[str, ModelSpec], experiments: Sequence[Experiment
     """Least squares of every equation in one problem, ``ties`` (``("eq:column",
     "eq:column", factor)``: the first is ``factor`` times the second) holding across
     them, the shared exact delay profiled on the joint optimal value."""
-    joint = JointRegression(specs, experiments, velocity, window, ties)
-    lo, hi = joint.bounds
-    taus = np.linspace(lo, hi, grid)
-    values = np.array([joint.value(t) for t in taus])
-    i = int(np.argmin(values))
-    best = minimize_scalar(joint.value, bounds=(taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]), method="bounded",
-                           options={"xatol": 1e-6 * hi})
-    tau = float(best.x) if best.fun <= values[i] else float(taus[i])
-    problem = joint.problem(tau)
-    fit = problem.refit(np.ones(problem.k, bool))
-    coefficients = dict(zip(problem.names, map(float, fit.coefficients)))
-    return JointResult(_models(specs, coefficients, tau, {"method": "equation_error", "train_mse": fit.train_mse}),
-                       tau, (taus, values), tuple(ties), {"method": "equation_error", "train_mse": fit.train_mse})
+    return JointRegression(specs, experiments, velocity, window, ties).identify(grid)
 
 
 def _models(specs: dict[str, ModelSpec], coefficients: dict[str, float], tau: float, info: dict):
@@ -321,8 +322,8 @@ class _PolishProblem:
                     start.append(coefficients[key])
                     lower.append(0.0 if n in spec.nonnegative else -np.inf)
         self.tied = tied
-        lo, hi = next(m.spec.delay for m in result.models.values()).tau_min, next(
-            m.spec.delay for m in result.models.values()).tau_max
+        delay = next(iter(result.models.values())).spec.delay  # shared by every equation
+        lo, hi = delay.tau_min, delay.tau_max
         names.append("tau")
         start.append(float(np.clip(result.tau, lo, hi)))
         lower.append(max(lo, step))  # the integrator needs a delay of at least one step

@@ -208,10 +208,11 @@ def _identify(spec: JointProblemSpec) -> JointRunResult:
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
     velocity, window = fit.velocity, fit.window
-    result = identify_joint(spec.equations, train, spec.ties, velocity, window=window)
+    joint = JointRegression(spec.equations, train, velocity, window, spec.ties)
+    result = joint.identify()
     path = None
     if fit.estimator != "lstsq":
-        result, path = _select(spec, result, train, test)
+        result, path = _select(spec, joint, result, train, test)
     refinement = None
     if spec.diagnose is not None:
         if test is None:
@@ -228,13 +229,13 @@ def _identify(spec: JointProblemSpec) -> JointRunResult:
     return JointRunResult(spec, result, train, test, test_mse, path=path, refinement=refinement, polish=polished)
 
 
-def _select(spec: JointProblemSpec, result: JointResult, train: Experiment, test: Experiment | None):
+def _select(spec: JointProblemSpec, joint: JointRegression, result: JointResult, train: Experiment,
+            test: Experiment | None):
     """The λ path of the joint problem at the profiled delay, scored by the joint test
     equation error; the chosen support is identified again (delay profiled anew)."""
     fit = spec.fit
     if test is None:
         raise CvxidError(f"estimator = '{fit.estimator}' selects terms by the test error: add [data.test]")
-    joint = JointRegression(spec.equations, train, fit.velocity, fit.window, spec.ties)
     validation = JointRegression(spec.equations, test, fit.velocity, fit.window).at(result.tau)
     path = joint.problem(result.tau).path(fit.lambdas, validation.residual, estimator=fit.estimator, debias=fit.debias)
     best = path.best(fit.selection)

@@ -304,8 +304,7 @@ def _stepwise(spec: ProblemSpec, family: DelayFamily, test_family: DelayFamily |
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.stepwise`), the final model polished at the sample step."""
     fit = spec.fit
-    jobs = fit.bootstrap.n_jobs if fit.bootstrap else 2
-    search = stepwise_output_error(spec.model, family, train, n_jobs=jobs)
+    search = stepwise_output_error(spec.model, family, train)
     model = search.model
     columns = list(model.spec.column_names)
     problem = Problem.from_regression(family.at(model.tau).subset(columns), model.spec.nonnegative, fit.solver)

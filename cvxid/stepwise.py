@@ -136,10 +136,12 @@ def stepwise_output_error(spec: ModelSpec, family: DelayFamily, train: Experimen
     start = time.perf_counter()
     names = spec.library.names
     linear = [spec.coordinate, spec.coordinate + "'"]
-    base = [n for n in (linear if base is None else base) if n in names]
+    if base is None:
+        base = [n for n in linear if n in names]
     unknown = set(base) - set(names)
     if unknown:
         raise CvxidError(f"stepwise base term(s) {', '.join(sorted(unknown))} are not in the library")
+    base = list(base)
     sigma = noise_level(train.output(spec.coordinate))
     step = max(step, train.dt)
     exact = spec.delay is not None and spec.delay.exact

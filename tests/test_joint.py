@@ -77,10 +77,10 @@ def _raw():
 def test_bad_coupled_specs_are_named(edit, message):
     raw = _raw()
     edit(raw)
-    with pytest.raises(Exception) as info:
+    with pytest.raises(CvxidError) as info:
         parse_problem(raw, SPEC.parent)
     assert message in str(info.value)
-    assert type(info.value).__name__ == "CvxidError"
+    assert type(info.value) is CvxidError
 
 
 def test_bad_coupled_spec_exits_cleanly_from_the_cli(tmp_path, capsys):
