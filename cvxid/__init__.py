@@ -7,24 +7,24 @@ The main entry points:
 * :func:`compare`, :func:`residuals`, :func:`diagnose`, :func:`refine` — model checking.
 """
 
-from .data import Experiment, from_frame, load
-from .diagnostics import compare, diagnose, residuals, with_effect
-from .diagnostics import refine as refine_model
-from .errors import CvxidError, CvxidWarning, SolverFailure
-from .identified import IdentifiedModel
-from .library import CATALOGUE, Library, register_effect
-from .model import ModelSpec
-from .path import Path
-from .pipeline import RunResult, refine_spec, run
-from .polish import polish
-from .problem import Problem
-from .problems import load_problem
-from .regression import Regression
-from .selection import order_search
+from cvxid.app.run import RunResult, order_search, refine_spec, run
+from cvxid.data.experiment import Experiment, from_frame, load
+from cvxid.diagnose.diagnosis import compare, diagnose, residuals, with_effect
+from cvxid.diagnose.diagnosis import refine as refine_model
+from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
+from cvxid.identified import IdentifiedModel
+from cvxid.identify.bootstrap import Bootstrap
+from cvxid.identify.output_error import polish
+from cvxid.identify.path import Path
+from cvxid.identify.problem import Problem
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import CATALOGUE, Library, register_effect
+from cvxid.regression.regression import Regression
+from cvxid.spec.load import load_problem
 
 __version__ = "0.1.0"
 __all__ = [
-    "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "Library", "ModelSpec", "Path",
+    "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "Library", "ModelSpec", "Path",
     "Problem", "Regression", "RunResult", "SolverFailure", "compare", "diagnose", "from_frame", "load",
     "load_problem", "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run",
     "with_effect",

@@ -12,7 +12,7 @@ equation's inertia), the terms may read every coordinate, :math:`u` is one share
 :func:`simulate_coupled` integrates it with compiled RK4 and a Hermite history buffer
 (the delayed coordinate's position and velocity); :func:`integrate_coupled` runs a batch of
 parameter variants at once (what a finite-difference Jacobian needs).  Identification is in
-:mod:`cvxid.joint`, the paper's rig in :mod:`cvxid.flexible_joint`.
+:mod:`cvxid.identify.joint`, the paper's rig in :mod:`cvxid.tools.flexible_joint`.
 """
 
 from __future__ import annotations
@@ -23,9 +23,9 @@ from typing import Callable
 import numpy as np
 from numba import njit
 
-from .errors import CvxidError
-from .simulate import SimulationDiverged, half_steps, hermite_stages
-from .terms import AbsProduct, Constant, Monomial, Sign, Term
+from cvxid.errors import CvxidError
+from cvxid.model.terms import AbsProduct, Constant, Monomial, Sign, Term
+from cvxid.simulate import SimulationDiverged, half_steps, hermite_stages
 
 
 @dataclass(frozen=True)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import control
 import numpy as np
 
-from .errors import CvxidError
+from cvxid.errors import CvxidError
 
 
 def _pade(tau: float, order: int):

@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .data import Experiment
-from .errors import CvxidError
-from .model import ModelSpec
-from .simulate import System, simulate
-from .terms import latex_symbol
-
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.model.equation import ModelSpec
+from cvxid.model.terms import latex_symbol
+from cvxid.simulate import System, simulate
 
 SCHEMA = "cvxid.identified/1"
 
@@ -126,7 +125,7 @@ class IdentifiedModel:
     def to_dict(self) -> dict:
         """A JSON-ready description (schema ``cvxid.identified/1``); user-defined Python
         terms cannot be written and are refused."""
-        from .terms import FunctionTerm
+        from cvxid.model.terms import FunctionTerm
 
         spec = self.spec
         if any(isinstance(t, FunctionTerm) for t in spec.library):
@@ -158,9 +157,9 @@ class IdentifiedModel:
     @classmethod
     def from_dict(cls, data: dict) -> "IdentifiedModel":
         """Rebuild a model written by :meth:`to_dict`, checking every field."""
-        from .delay import DelayedFeedback
-        from .library import Library
-        from .terms import parse_term
+        from cvxid.model.delay import DelayedFeedback
+        from cvxid.model.library import Library
+        from cvxid.model.terms import parse_term
 
         try:
             if data.get("schema") != SCHEMA:
@@ -214,13 +213,13 @@ class IdentifiedModel:
     def to_control(self, pade_order: int = 6):
         """The model as a python-control ``NonlinearIOSystem`` (input f, output x), with
         the delay as a Padé approximation of ``pade_order``."""
-        from .export import to_nlsys
+        from cvxid.export import to_nlsys
 
         return to_nlsys(self, pade_order)
 
     def linearized_tf(self, pade_order: int = 6):
         """The linearisation at rest as a python-control transfer function f -> x, the
         delay as a Padé approximation (for margins and controller design)."""
-        from .export import linearized_tf
+        from cvxid.export import linearized_tf
 
         return linearized_tf(self, pade_order)

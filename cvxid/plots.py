@@ -74,11 +74,9 @@ def refinement_figure(labels, series: dict):
     return fig
 
 
-def signature_figure(name: str, coordinate: str = "x", span: float = 2.0):
-    """An effect's signature: its force against the state it depends on."""
-    from .library import effect
-
-    eff = effect(name)
+def signature_figure(eff, coordinate: str = "x", span: float = 2.0):
+    """An effect's signature (a catalogue :class:`~cvxid.model.library.Effect`): its force
+    against the state it depends on."""
     term = eff.build(coordinate)
     grid = np.linspace(-span, span, 401)
     on_velocity = any(s.endswith("'") for s in term.symbols)
@@ -90,7 +88,7 @@ def signature_figure(name: str, coordinate: str = "x", span: float = 2.0):
     ax.axvline(0, color="gray", lw=0.6)
     ax.set_xlabel(coordinate + "'" if on_velocity else coordinate)
     ax.set_ylabel(term.name)
-    ax.set_title(f"{name}: {eff.meaning}", fontsize=9)
+    ax.set_title(f"{eff.name}: {eff.meaning}", fontsize=9)
     fig.tight_layout()
     return fig
 

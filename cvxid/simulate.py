@@ -22,12 +22,18 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+from numba import njit
 from scipy.interpolate import CubicSpline
 
-from .errors import CvxidError
-from numba import njit
-
-from .terms import AbsProduct, Constant, Monomial, Sign, Term, velocity_symbol
+from cvxid.errors import CvxidError
+from cvxid.model.terms import (
+    AbsProduct,
+    Constant,
+    Monomial,
+    Sign,
+    Term,
+    velocity_symbol,
+)
 
 HISTORIES = ("zero", "initial")
 MAX_SUBSTEPS = 16

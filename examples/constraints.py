@@ -17,14 +17,14 @@
 
 # %%
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
 import cvxid
-from cvxid.library import Library
-from cvxid.regression import DelayFamily
-from cvxid.terms import parse_term
-from pathlib import Path
+from cvxid.model.library import Library
+from cvxid.model.terms import parse_term
+from cvxid.regression.regression import DelayFamily
 
 HERE = Path(__file__).resolve().parent
 spec = cvxid.load_problem(HERE.parent / "problems" / "hidden_friction.toml")

@@ -28,7 +28,7 @@ from dataclasses import replace
 import pandas as pd
 
 import cvxid
-from cvxid.problems import load_problem
+from cvxid.spec.load import load_problem
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..")
 seeds = int(os.environ.get("SEEDS", "5"))

@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import cvxid
-from cvxid.regression import DelayFamily
+from cvxid.regression.regression import DelayFamily
 
 HERE = Path(__file__).resolve().parent
 OUT = Path(os.environ.get("OUT", "out/lambda_path"))
@@ -36,7 +36,7 @@ print(problem)
 # %%
 lambdas = np.logspace(-6, 2, 50)
 for estimator in ("lasso", "stlsq"):
-    path = problem.path(lambdas, validate=test.residual, estimator=estimator)
+    path = cvxid.Path.compute(problem, lambdas, validate=test.residual, estimator=estimator)
     print(f"\n{estimator}: Pareto front (least training error per number of terms)")
     print(path.pareto)
     for rule in ("min", "1se"):
@@ -49,6 +49,6 @@ for estimator in ("lasso", "stlsq"):
 # ## How sure is the selection?  The bootstrap's inclusion probabilities
 
 # %%
-boot = problem.bootstrap(samples=10, fraction=0.5, seed=0, lambdas=lambdas, validate=test.residual,
-                         estimator="stlsq", show_progress=False)
+boot = cvxid.Bootstrap.of(problem, samples=10, fraction=0.5, seed=0, lambdas=lambdas, validate=test.residual,
+                          estimator="stlsq", show_progress=False)
 print(boot.summary().round(4))

@@ -19,8 +19,8 @@
 import os
 from pathlib import Path
 
-from cvxid.accuracy import accuracy, summary
-from cvxid.problems import load_problem
+from cvxid.spec.load import load_problem
+from cvxid.tools.accuracy import accuracy, summary
 
 HERE = Path(__file__).resolve().parent
 spec = load_problem(HERE.parent / "problems" / "duffing_delay.toml")

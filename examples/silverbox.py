@@ -25,8 +25,8 @@ import numpy as np
 from scipy.io import loadmat
 
 from cvxid import Experiment, Library, ModelSpec, compare, diagnose
-from cvxid.diagnostics import refine, refit
-from cvxid.terms import parse_term
+from cvxid.diagnose.diagnosis import refine, refit
+from cvxid.model.terms import parse_term
 
 HERE = Path(__file__).resolve().parent
 SILVERBOX = Path(os.environ.get("SILVERBOX", HERE.parents[1] / "shared" / "data" / "silverbox_SNLS80mV.mat"))

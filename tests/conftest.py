@@ -20,7 +20,7 @@ needs_paper_data = pytest.mark.skipif(not PAPER_DATA.is_file(), reason="paper da
 
 def cli_error(tmp_path, capsys, text: str) -> str:
     """Run ``cvxid run`` on a spec with ``text``; assert exit 2, one line, no traceback."""
-    from cvxid.cli import main
+    from cvxid.app.cli import main
 
     spec = tmp_path / "bad.toml"
     spec.write_text(text)

@@ -2,8 +2,8 @@
 
 import pytest
 
-from cvxid.accuracy import accuracy, summary
-from cvxid.problems import load_problem
+from cvxid.spec.load import load_problem
+from cvxid.tools.accuracy import accuracy, summary
 
 from .conftest import ROOT
 

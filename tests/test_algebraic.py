@@ -5,8 +5,8 @@ from math import factorial
 import numpy as np
 import pytest
 
-from cvxid.algebraic import AlgebraicOrders, AlgebraicTransform
 from cvxid.errors import CvxidError
+from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform
 
 T = np.linspace(0.0, 2.0, 4001)
 

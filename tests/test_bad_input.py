@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from cvxid import CvxidError, CvxidWarning, Experiment, Problem, SolverFailure
-from cvxid.library import Library
-from cvxid.model import ModelSpec
-from cvxid.regression import DelayFamily, Regression
-from cvxid.terms import parse_term
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library
+from cvxid.model.terms import parse_term
+from cvxid.regression.regression import DelayFamily, Regression
 
 from .conftest import cli_error
 

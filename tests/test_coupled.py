@@ -3,8 +3,12 @@
 import numpy as np
 import pytest
 
-from cvxid.flexible_joint import flexible_joint, flexible_joint_experiment, flexible_joint_specs
-from cvxid.joint import identify_joint
+from cvxid.identify.joint import identify_joint
+from cvxid.tools.flexible_joint import (
+    flexible_joint,
+    flexible_joint_experiment,
+    flexible_joint_specs,
+)
 
 
 def test_simulated_joint_satisfies_its_equations():

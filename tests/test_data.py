@@ -88,10 +88,10 @@ def test_npz_and_dataframe_loaders(tmp_path):
 
 
 def test_gaps_split_into_segments_and_restart_the_integrals():
-    from cvxid.library import Library
-    from cvxid.model import ModelSpec
-    from cvxid.regression import DelayFamily
-    from cvxid.terms import parse_term
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+    from cvxid.model.terms import parse_term
+    from cvxid.regression.regression import DelayFamily
 
     t = np.arange(400) * 0.01
     x, f = np.sin(1.3 * t), np.cos(0.7 * t)

@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 
 from cvxid import CvxidError
-from cvxid.delay import DelayedFeedback
+from cvxid.data.experiment import Experiment
 from cvxid.identified import IdentifiedModel
-from cvxid.library import Library
-from cvxid.model import ModelSpec
-from cvxid.problem import Problem
-from cvxid.profile import effective_rows, profile_delay
-from cvxid.polish import polish
-from cvxid.regression import DelayFamily
+from cvxid.identify.output_error import polish
+from cvxid.identify.problem import Problem
+from cvxid.identify.profile import effective_rows, profile_delay
+from cvxid.model.delay import DelayedFeedback
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library
+from cvxid.model.terms import parse_term
+from cvxid.regression.regression import DelayFamily
 from cvxid.simulate import System, simulate
-from cvxid.data import Experiment
-from cvxid.terms import parse_term
 
 TERMS = ("x'", "x", "x^3")
 TRUE = {"m": 1.0, "x'": 0.5, "x": 4.0, "x^3": 1.0, "tau": 0.15, "gain": 1.5}

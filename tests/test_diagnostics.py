@@ -4,13 +4,20 @@ import numpy as np
 import pytest
 
 from cvxid import CvxidError
-from cvxid.data import Experiment
-from cvxid.delay import DelayedFeedback
-from cvxid.diagnostics import compare, diagnose, refine, refit, residuals, with_effect
-from cvxid.library import Library
-from cvxid.model import ModelSpec
+from cvxid.data.experiment import Experiment
+from cvxid.diagnose.diagnosis import (
+    compare,
+    diagnose,
+    refine,
+    refit,
+    residuals,
+    with_effect,
+)
+from cvxid.model.delay import DelayedFeedback
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library
+from cvxid.model.terms import parse_term
 from cvxid.simulate import System, simulate
-from cvxid.terms import parse_term
 
 HIDDEN = {
     "coulomb": ("sign(x')", 0.8),
@@ -114,8 +121,8 @@ def test_a_wrong_delay_is_named_and_estimated_again():
     right = refit(linear_model(), train, ["x''", "x", "x'"], None)
     assumed = refit(linear_model(), train, ["x''", "x", "x'"], None)
     # the same terms with an assumed delay of 0.3 s (truth 0.15 s): least squares at that delay
-    from cvxid.regression import DelayFamily
-    from cvxid.problem import Problem
+    from cvxid.identify.problem import Problem
+    from cvxid.regression.regression import DelayFamily
     family = DelayFamily(linear_model(), train, "savgol")
     fit = Problem.from_regression(family.at(0.3), ("x''",)).refit(np.ones(3, bool))
     assumed = type(right)(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)

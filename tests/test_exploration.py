@@ -4,10 +4,10 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvxid import CvxidError, Problem
-from cvxid.bootstrap import BootstrapSettings, bootstrap
-from cvxid.pipeline import run
-from cvxid.regression import Regression
+from cvxid import CvxidError, Path, Problem
+from cvxid.app.run import run
+from cvxid.identify.bootstrap import Bootstrap, BootstrapSettings, bootstrap
+from cvxid.regression.regression import Regression
 
 from .conftest import ROOT, needs_paper_data
 
@@ -27,7 +27,7 @@ def sparse(rng):
 def test_path_coefficients_frame_and_selection_rules(sparse):
     P, p, Pt, pt, truth = sparse
     prob = Problem.from_arrays(P, p, list("abcdef"))
-    path = prob.path(np.logspace(-6, 1, 30), validate=lambda c: Pt @ c - pt)
+    path = Path.compute(prob, np.logspace(-6, 1, 30), validate=lambda c: Pt @ c - pt)
     frame = path.coefficients
     assert isinstance(frame, pd.DataFrame) and frame.shape == (30, 6) and list(frame.columns) == list("abcdef")
     best = path.best("min")
@@ -44,7 +44,7 @@ def test_path_coefficients_frame_and_selection_rules(sparse):
 
 def test_blocked_kfold_selects_the_true_support(sparse):
     P, p, _, _, truth = sparse
-    path = Problem.from_arrays(P, p, list("abcdef")).path(np.logspace(-6, 1, 20), folds=5)
+    path = Path.compute(Problem.from_arrays(P, p, list("abcdef")), np.logspace(-6, 1, 20), folds=5)
     assert np.all(np.isfinite(path.validation)) and np.all(path.validation_se > 0)
     np.testing.assert_array_equal(path.best("1se").support, truth != 0)
 
@@ -76,7 +76,7 @@ def test_bootstrap_is_reproducible_and_parallel_safe(sparse):
 
 def test_out_of_bag_validation_without_a_test_set(sparse):
     P, p, _, _, truth = sparse
-    boot = Problem.from_arrays(P, p, list("abcdef")).bootstrap(
+    boot = Bootstrap.of(Problem.from_arrays(P, p, list("abcdef")),
         samples=4, seed=1, lambdas=np.logspace(-5, 0, 10), show_progress=False
     )
     np.testing.assert_array_equal(boot.inclusion.to_numpy() == 1.0, truth != 0)

@@ -5,11 +5,11 @@ import json
 
 import pytest
 
-from cvxid.cli import main
+from cvxid.app.cli import main
+from cvxid.app.run import run
 from cvxid.errors import CvxidError
-from cvxid.joint import JointResult
-from cvxid.pipeline import run
-from cvxid.problems import load_problem, parse_problem
+from cvxid.identify.joint import JointResult
+from cvxid.spec.load import load_problem, parse_problem
 
 from .conftest import ROOT
 
@@ -49,7 +49,7 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
 def test_corrupted_joint_model_files_are_refused(tmp_path):
     path = tmp_path / "model.json"
     for text, message in [("{", "cannot read"), ('{"schema": "cvxid.identified/1"}', "not a cvxid joint model"),
-                          ('{"schema": "cvxid.joint/1", "tau": 0.2}', "incomplete or corrupted")]:
+                          ('{"schema": "cvxid.identify.joint/1", "tau": 0.2}', "incomplete or corrupted")]:
         path.write_text(text)
         with pytest.raises(CvxidError, match=message):
             JointResult.load(path)
@@ -64,7 +64,7 @@ def _raw():
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r["model"]["tie"][0].update(left="alpha:gamma"), "'alpha:gamma' is not a column"),
     (lambda r: r["model"]["equation"][1].update(coordinate="theta"), "two [[model.equation]] tables have the coordinate"),
-    (lambda r: r["model"].update(equation=r["model"]["equation"][:1]), "two or more [[model.equation]]"),
+    (lambda r: r["model"].update(equation=r["model"]["equation"][:1]), "ties within one equation"),
     (lambda r: r["model"]["delay"].update(method="taylor"), 'method = "exact"'),
     (lambda r: r["model"].pop("delay"), "missing section [model.delay]"),
     (lambda r: r["model"]["equation"][1].update(names={"k_s": "alpha"}), "'k_s' is given in two equations"),

@@ -8,8 +8,8 @@ import sys
 import numpy as np
 import pytest
 
-from cvxid.cli import main
-from cvxid.pipeline import run
+from cvxid.app.cli import main
+from cvxid.app.run import run
 
 from .conftest import ROOT, cli_error, needs_paper_data
 
@@ -108,7 +108,7 @@ def test_bad_specs_exit_2_with_one_line(tmp_path, capsys, text, message):
 def test_console_script_has_no_traceback(tmp_path):
     spec = tmp_path / "bad.toml"
     spec.write_text("[model]\n[data.train]\nfile = 'nope.csv'\n")
-    proc = subprocess.run([sys.executable, "-m", "cvxid.cli", "run", str(spec)], capture_output=True, text=True)
+    proc = subprocess.run([sys.executable, "-m", "cvxid.app.cli", "run", str(spec)], capture_output=True, text=True)
     assert proc.returncode == 2 and "Traceback" not in proc.stderr
 
 

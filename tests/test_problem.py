@@ -6,9 +6,9 @@ import cvxpy as cp
 import numpy as np
 import pytest
 
-import cvxid.problem as problem_module
+import cvxid.identify.problem as problem_module
 from cvxid import CvxidError, CvxidWarning, Problem, SolverFailure
-from cvxid.stlsq import stlsq
+from cvxid.identify.stlsq import stlsq
 
 
 @pytest.fixture

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cvxid.algebraic import AlgebraicOrders, AlgebraicTransform
-from cvxid.data import Experiment, load
+from cvxid.data.experiment import Experiment, load
 from cvxid.errors import CvxidError
+from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform
 
 T = np.linspace(0.0, 1.5, 1501)
 coefficient = st.floats(-10, 10, allow_nan=False, allow_infinity=False)

@@ -2,14 +2,14 @@
 
 import numpy as np
 
-from cvxid.data import Experiment
-from cvxid.library import Library
-from cvxid.model import ModelSpec
-from cvxid.problem import Problem
-from cvxid.regression import DelayFamily
-from cvxid.robust import huber_refit, huber_weights
+from cvxid.data.experiment import Experiment
+from cvxid.identify.loss import huber_refit, huber_weights
+from cvxid.identify.problem import Problem
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library
+from cvxid.model.terms import parse_term
+from cvxid.regression.regression import DelayFamily
 from cvxid.simulate import System, simulate
-from cvxid.terms import parse_term
 
 
 def test_huber_weights_leave_inliers_alone(rng):

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
+from cvxid.model.terms import parse_term
 from cvxid.simulate import SimulationDiverged, System, simulate
-from cvxid.terms import parse_term
 
 T = np.arange(5001) * 2e-4  # 1 s at the paper's step
 
@@ -61,7 +61,7 @@ def test_divergence_is_a_clear_error():
 
 
 def test_user_terms_run_in_the_python_integrator_like_the_compiled_one():
-    from cvxid.terms import FunctionTerm
+    from cvxid.model.terms import FunctionTerm
 
     cubic = FunctionTerm("cube", "a user's cubic stiffness", lambda s: s["x"] ** 3, frozenset({"x"}))
     force = lambda t: 10 * np.sin(4 * t)

@@ -1,12 +1,11 @@
 """Structure selection by simulation error (`estimator = "stepwise_oe"`)."""
 
+import pytest
 import tomllib
 
-import pytest
-
 from cvxid import CvxidError
-from cvxid.pipeline import run
-from cvxid.problems import parse_problem
+from cvxid.app.run import run
+from cvxid.spec.load import parse_problem
 
 from .conftest import ROOT
 

@@ -1,0 +1,265 @@
+"""Measured data: the :class:`Experiment` and its loaders.
+
+An experiment is a uniform time grid with named outputs (the measured coordinates, e.g.
+``x``), named inputs (e.g. the force ``f``) and, when a user has them, measured velocities.
+Everything is validated on construction, so later stages can trust the arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from cvxid.errors import CvxidError
+
+MIN_SAMPLES = 20
+"""Fewest samples an experiment may have (the algebraic operation needs a record)."""
+
+UNIFORM_RTOL = 1e-6
+"""Largest relative deviation of a time step from the mean step."""
+
+
+def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> np.ndarray:
+    try:
+        arr = np.asarray(values, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise CvxidError(
+            f"experiment '{experiment}': signal '{name}' is not numeric ({exc}); "
+            "give a 1-D array of numbers"
+        ) from None
+    arr = np.squeeze(arr)
+    if arr.ndim != 1:
+        raise CvxidError(
+            f"experiment '{experiment}': signal '{name}' has shape {np.shape(values)}; "
+            "give a 1-D array (one value per sample)"
+        )
+    bad = np.isinf(arr) | (np.isnan(arr) if not allow_nan else False)
+    if bad.any():
+        first = int(np.argmax(bad))
+        raise CvxidError(
+            f"experiment '{experiment}': signal '{name}' has {int(bad.sum())} NaN/inf "
+            f"value(s), the first at sample {first}; repair them, or for missing samples (NaN) "
+            "load with gaps = true so that the integrals restart after each gap"
+        )
+    return arr
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One record of a system: time, outputs, inputs (and optional measured velocities).
+
+    Parameters
+    ----------
+    time : array_like
+        Strictly increasing, uniformly spaced sample times.
+    outputs : mapping of str to array_like
+        Measured coordinates by name (``{"x": x}``).
+    inputs : mapping of str to array_like
+        Measured inputs by name (``{"f": f}``).
+    name : str
+        Used in messages and reports.
+    velocities : mapping of str to array_like, optional
+        Measured velocities by coordinate name, when a user has them.
+    """
+
+    time: np.ndarray
+    outputs: Mapping[str, np.ndarray]
+    inputs: Mapping[str, np.ndarray]
+    name: str = "experiment"
+    velocities: Mapping[str, np.ndarray] = field(default_factory=dict)
+    gaps: bool = False
+
+    def __post_init__(self) -> None:
+        t = _as_signal("time", self.time, self.name)
+        if not self.outputs:
+            raise CvxidError(f"experiment '{self.name}': no output given; name at least one")
+        signals = {}
+        for group in ("outputs", "inputs", "velocities"):
+            signals[group] = {
+                str(k): _as_signal(f"{group[:-1]} {k}", v, self.name, allow_nan=self.gaps)
+                for k, v in getattr(self, group).items()
+            }
+        for group, sigs in signals.items():
+            for k, v in sigs.items():
+                if v.size != t.size:
+                    raise CvxidError(
+                        f"experiment '{self.name}': {group[:-1]} '{k}' has {v.size} samples "
+                        f"but time has {t.size}; all signals must have the same length"
+                    )
+        if t.size < MIN_SAMPLES:
+            raise CvxidError(
+                f"experiment '{self.name}': only {t.size} samples; at least {MIN_SAMPLES} are needed"
+            )
+        steps = np.diff(t)
+        if np.any(steps <= 0):
+            k = int(np.argmax(steps <= 0))
+            raise CvxidError(
+                f"experiment '{self.name}': time is not strictly increasing at sample {k + 1} "
+                f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
+            )
+        dt = (t[-1] - t[0]) / (t.size - 1)
+        dev = np.max(np.abs(steps - dt)) / dt
+        if dev > UNIFORM_RTOL:
+            k = int(np.argmax(np.abs(steps - dt)))
+            raise CvxidError(
+                f"experiment '{self.name}': time is not uniformly sampled (step {steps[k]:g} at "
+                f"sample {k} against a mean step of {dt:g}); resample onto a uniform grid first"
+            )
+        object.__setattr__(self, "time", t)
+        for group, sigs in signals.items():
+            object.__setattr__(self, group, sigs)
+
+    # ------------------------------------------------------------------ properties
+    @property
+    def n(self) -> int:
+        """Number of samples."""
+        return int(self.time.size)
+
+    @property
+    def dt(self) -> float:
+        """Sample step."""
+        return float((self.time[-1] - self.time[0]) / (self.n - 1))
+
+    @property
+    def duration(self) -> float:
+        return float(self.time[-1] - self.time[0])
+
+    def output(self, name: str) -> np.ndarray:
+        if name not in self.outputs:
+            raise CvxidError(
+                f"experiment '{self.name}' has no output '{name}' (it has {sorted(self.outputs)})"
+            )
+        return self.outputs[name]
+
+    def input(self, name: str) -> np.ndarray:
+        """The input ``name``; ``"-u"`` is minus the input ``u`` (an equation driven by the
+        negated input, as the link equation of a flexible joint is)."""
+        if name.startswith("-") and name not in self.inputs and name[1:].strip() in self.inputs:
+            return -self.inputs[name[1:].strip()]
+        if name not in self.inputs:
+            raise CvxidError(
+                f"experiment '{self.name}' has no input '{name}' (it has {sorted(self.inputs)})"
+            )
+        return self.inputs[name]
+
+    def segments(self) -> list["Experiment"]:
+        """The gap-free runs of the record (itself when it has no NaN samples); runs too
+        short to use are dropped."""
+        signals = [*self.outputs.values(), *self.inputs.values(), *self.velocities.values()]
+        missing = np.zeros(self.n, bool)
+        for v in signals:
+            missing |= np.isnan(v)
+        if not missing.any():
+            return [self]
+        edges = np.flatnonzero(np.diff(np.r_[1, missing.astype(int), 1]))
+        runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= MIN_SAMPLES]
+        if not runs:
+            raise CvxidError(f"experiment '{self.name}': no gap-free run of {MIN_SAMPLES} samples or more")
+        return [
+            Experiment(
+                self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()}, {k: v[a:b] for k, v in self.inputs.items()},
+                name=f"{self.name}[{a}:{b}]", velocities={k: v[a:b] for k, v in self.velocities.items()},
+            )
+            for a, b in runs
+        ]
+
+    def __repr__(self) -> str:
+        parts = [
+            f"Experiment '{self.name}': {self.n} samples, t = {self.time[0]:g} … "
+            f"{self.time[-1]:g} s (dt = {self.dt:g} s)",
+            f"  outputs: {', '.join(self.outputs)}",
+            f"  inputs: {', '.join(self.inputs) or '(none)'}",
+        ]
+        if self.velocities:
+            parts.append(f"  measured velocities: {', '.join(self.velocities)}")
+        return "\n".join(parts)
+
+
+# ---------------------------------------------------------------------- loaders
+def _pick(available: Mapping[str, np.ndarray], wanted: str, what: str, source: Path):
+    if wanted not in available:
+        raise CvxidError(
+            f"{source}: no {what} named '{wanted}'; available: {', '.join(sorted(available))}"
+        )
+    return available[wanted]
+
+
+def _csv_columns(path: Path) -> dict[str, np.ndarray]:
+    import pandas as pd
+
+    try:
+        frame = pd.read_csv(path)
+    except Exception as exc:  # pandas raises many types for malformed files
+        raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
+    return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
+
+
+def _mat_columns(path: Path) -> dict[str, np.ndarray]:
+    from scipy.io import loadmat
+
+    try:
+        raw = loadmat(path)
+    except Exception as exc:  # scipy raises many types for malformed files
+        raise CvxidError(f"{path}: cannot be read as a MATLAB file ({exc})") from None
+    return {k: v for k, v in raw.items() if not k.startswith("__")}
+
+
+def _npz_columns(path: Path) -> dict[str, np.ndarray]:
+    try:
+        with np.load(path, allow_pickle=False) as archive:
+            return {k: archive[k] for k in archive.files}
+    except Exception as exc:  # numpy raises many types for malformed archives
+        raise CvxidError(f"{path}: cannot be read as a NumPy .npz archive ({exc})") from None
+
+
+READERS = {
+    ".csv": (_csv_columns, "column"),
+    ".mat": (_mat_columns, "variable"),
+    ".npz": (_npz_columns, "array"),
+}
+
+
+def load(
+    path,
+    time: str,
+    outputs: Mapping[str, str],
+    inputs: Mapping[str, str],
+    velocities: Mapping[str, str] | None = None,
+    name: str | None = None,
+    gaps: bool = False,
+) -> Experiment:
+    """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
+    file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
+
+    ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
+    variable names in the file.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in READERS:
+        raise CvxidError(f"{path}: unknown data format '{suffix}'; use a .csv, .mat or .npz file")
+    if not path.is_file():
+        raise CvxidError(f"data file not found: {path}")
+    reader, what = READERS[suffix]
+    return _experiment(reader(path), what, path, time, outputs, inputs, velocities, name or path.stem, gaps)
+
+
+def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],
+               velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False) -> Experiment:
+    """An experiment from a pandas DataFrame, by column names."""
+    columns = {str(c): frame[c].to_numpy() for c in frame.columns}
+    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps)
+
+
+def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps) -> Experiment:
+    return Experiment(
+        _pick(columns, time, what, source),
+        {k: _pick(columns, v, what, source) for k, v in outputs.items()},
+        {k: _pick(columns, v, what, source) for k, v in inputs.items()},
+        name=name,
+        velocities={k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()},
+        gaps=gaps,
+    )

@@ -1,0 +1,167 @@
+r"""Missing effects of a coupled model: rank, add, refit, watch the error fall.
+
+Every candidate effect of the catalogue (Coulomb friction, damping, stiffness, offset, …)
+is built for every coordinate and added to every equation with its own coefficient; the
+joint least-squares fit is redone at the current delay and scored by the equation error on
+the test data, :math:`\text{ratio} = \text{MSE}_\text{test}(\text{with}) /
+\text{MSE}_\text{test}(\text{without})`.  One regression holding every candidate column is
+built once; each candidate is a column subset of it.
+
+:func:`refine_joint` adds the best candidate while its own ratio, the test equation error
+of the re-identified model (delay profiled again) and the free-run simulation error of the
+test (every coordinate, relative to its spread) all fall by at least ``min_improvement``:
+a re-profiled delay alone can lower the errors of a spurious term.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.identify.joint import (
+    JointRegression,
+    JointResult,
+    identify_joint,
+    joint_test_mse,
+)
+from cvxid.identify.problem import Problem
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import CATALOGUE, resolve_term
+from cvxid.model.terms import Term
+
+
+def candidate_terms(specs: dict[str, ModelSpec], candidates: Sequence[str] | None = None) -> dict[str, Term]:
+    """Candidate name → term: each catalogue effect for each coordinate (``"coulomb(theta)"``),
+    or the user's effect and term names; terms every equation already has are left out."""
+    coords = tuple(s.coordinate for s in specs.values())
+    names = [n for n in CATALOGUE if n != "delay"] if candidates is None else list(candidates)
+    out = {}
+    for name in names:
+        if name in CATALOGUE:
+            built = {f"{name}({c})": CATALOGUE[name].build(c) for c in coords}
+        else:
+            built = {name: resolve_term(name, coords)}
+        for label, term in built.items():
+            if not all(term.name in s.column_names for s in specs.values()):
+                out[label] = term
+    if not out:
+        raise CvxidError("no candidate effect is missing from the coupled model; nothing to diagnose")
+    return out
+
+
+def _with(specs: dict[str, ModelSpec], terms: Sequence[Term]) -> dict[str, ModelSpec]:
+    return {label: replace(s, library=s.library + [t for t in terms if t.name not in s.column_names])
+            for label, s in specs.items()}
+
+
+def diagnose_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
+                   velocity: str = "savgol", window: float | None = None) -> pd.DataFrame:
+    """The candidates ranked by the test equation error of the joint refit with each one
+    (column ``ratio``: below 1 the effect explains part of the error)."""
+    specs = result.specs
+    terms = candidate_terms(specs, candidates)
+    union = _with(specs, list(terms.values()))
+    fitted = JointRegression(union, train, velocity, window, result.ties).at(result.tau)
+    scored = JointRegression(union, test, velocity, window).at(result.tau)
+    base = [f"{label}:{n}" for label, s in specs.items() for n in s.column_names]
+    nonnegative = [f"{label}:{n}" for label, s in specs.items() for n in s.nonnegative]
+
+    def test_mse(names):
+        problem = Problem.from_regression(fitted.subset(names), nonnegative, ties=result.ties)
+        fit = problem.refit(np.ones(problem.k, bool))
+        return scored.subset(names).mse(fit.coefficients)
+
+    before = test_mse(base)
+    rows = []
+    for label, term in terms.items():
+        added = [f"{eq}:{term.name}" for eq, s in specs.items() if term.name not in s.column_names]
+        after = test_mse(base + added)
+        rows.append({"candidate": label, "term": term.name, "meaning": term.meaning, "test_mse": after,
+                     "ratio": after / before})
+    frame = pd.DataFrame(rows).sort_values("ratio").set_index("candidate")
+    frame.attrs["test_mse_before"] = before
+    return frame
+
+
+def simulation_error(result: JointResult, experiment: Experiment) -> float:
+    """Mean over coordinates of the free-run RMS error relative to the coordinate's
+    standard deviation (inf when the simulation diverges)."""
+    table = result.compare(experiment)
+    spread = np.array([np.std(experiment.output(c)) for c in table.index])
+    return float(np.mean(table["rms"].to_numpy() / spread))
+
+
+@dataclass
+class JointRefinement:
+    """The diagnose → add → refit loop: its steps, rankings and final result."""
+
+    result: JointResult
+    steps: list[dict] = field(default_factory=list)
+    rankings: list[pd.DataFrame] = field(default_factory=list)
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame(self.steps)
+
+    def plot(self):
+        from cvxid.plots import refinement_figure
+
+        steps = self.steps
+        labels = ["start"] + [s["added"] for s in steps]
+        series = {
+            "test equation-error MSE": [steps[0]["test_mse_before"]] + [s["test_mse_after"] for s in steps],
+            "test simulation error (relative)": [steps[0]["simulation_error_before"]]
+            + [s["simulation_error_after"] for s in steps],
+        } if steps else {}
+        return refinement_figure(labels, series)
+
+    def __repr__(self) -> str:
+        if not self.rankings:
+            return "Joint refinement: not run"
+        lines = ["Joint diagnosis (test equation error with each candidate added, ratio < 1 helps):"]
+        lines += ["  " + line for line in self.rankings[0].head(5)[["term", "ratio"]].to_string().splitlines()]
+        if self.steps:
+            lines.append("Refinement:")
+            lines += ["  " + line for line in self.table().to_string(index=False).splitlines()]
+        else:
+            lines.append("Refinement: no candidate lowered both errors enough; the model is kept")
+        return "\n".join(lines)
+
+
+def refine_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
+                 min_improvement: float = 0.2, max_steps: int = 5, velocity: str = "savgol",
+                 window: float | None = None) -> JointRefinement:
+    """Add the best-ranked effect and re-identify (delay profiled again) while the effect's
+    ratio, the test equation error and the test simulation error all fall by
+    ``min_improvement``."""
+    out = JointRefinement(result)
+    equation_error = joint_test_mse(result, test, velocity, window)
+    sim_error = simulation_error(result, test)
+    for _ in range(max_steps + 1):
+        try:
+            ranking = diagnose_joint(out.result, train, test, candidates, velocity, window)
+        except CvxidError:
+            break
+        out.rankings.append(ranking)
+        if len(out.steps) >= max_steps:
+            break
+        best = ranking.index[0]
+        term = ranking.loc[best, "term"]
+        specs = _with(out.result.specs, [resolve_term(term, tuple(out.result.specs))])
+        trial = identify_joint(specs, train, out.result.ties, velocity, window=window)
+        new_equation = joint_test_mse(trial, test, velocity, window)
+        new_sim = simulation_error(trial, test)
+        keep = 1 - min_improvement
+        accepted = (ranking["ratio"].iloc[0] <= keep  # the effect itself, at the current delay
+                    and new_equation <= keep * equation_error and new_sim <= keep * sim_error)
+        if not accepted:
+            break
+        out.steps.append({"added": best, "term": term, "test_mse_before": equation_error, "test_mse_after": new_equation,
+                          "simulation_error_before": sim_error, "simulation_error_after": new_sim,
+                          "tau": trial.tau})
+        out.result, equation_error, sim_error = trial, new_equation, new_sim
+    return out

@@ -1,0 +1,170 @@
+r"""A sweep over :math:`\lambda`: the :class:`Path`.
+
+One :class:`~cvxid.identify.problem.Problem` is re-solved for each value of its ``lambda``
+parameter (canonicalised once).  With ``debias`` each solution is refitted by least squares
+on its support (the paper's "keep the selected and the delay terms, refit" step), so the
+path explores *supports* and the coefficients carry no shrinkage.  Each solution is scored
+on the training data and, when a validation function is given, on held-out data.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from cvxid.errors import CvxidError
+from cvxid.identify.problem import Fit, Problem
+from cvxid.identify.stlsq import stlsq
+
+ESTIMATORS = ("lasso", "stlsq", "lstsq")
+"""Selectors along a path; ``lstsq`` selects nothing: every column at every lambda."""
+SELECTION_RULES = ("min", "1se")
+BLOCKS = 20
+"""Contiguous blocks of validation residuals used for the standard error (residuals of
+neighbouring samples are strongly correlated, so single samples would understate it)."""
+
+
+def _sweep(problem: Problem, lambdas: np.ndarray, estimator: str, debias: bool) -> list[Fit]:
+    if estimator == "lstsq":
+        fit = problem.refit(np.ones(problem.k, dtype=bool))
+        return [replace(fit, lam=float(lam)) for lam in lambdas]
+    fits = []
+    for lam in lambdas:
+        if estimator == "stlsq":
+            fit = stlsq(problem, lam)
+        else:
+            fit = problem.solve(lam)
+            if debias:
+                fit = problem.refit(fit.support, lam)
+        fits.append(fit)
+    return fits
+
+
+def _cross_validated(problem: Problem, lambdas, folds: int, estimator: str, debias: bool) -> "Path":
+    """Blocked k-fold over time: each fold leaves out one contiguous block of rows, so
+    neighbouring (strongly correlated) samples never sit on both sides."""
+    reg = problem.regression
+    if reg is None:
+        raise CvxidError("cross-validation needs the rows: build the problem with from_regression or from_arrays")
+    if folds < 2:
+        raise CvxidError(f"folds must be at least 2, got {folds}")
+    blocks = np.array_split(np.arange(reg.shape[0]), folds)
+    errors = np.zeros((folds, lambdas.size))
+    for j, rows in enumerate(blocks):
+        weights = np.ones(reg.shape[0])
+        weights[rows] = 0.0
+        sub = Problem.from_regression(reg, problem.nonnegative, problem.solver, row_weights=weights)
+        P, p = reg.P[rows], reg.p[rows]
+        errors[j] = [np.mean((P @ f.coefficients - p) ** 2) for f in _sweep(sub, lambdas, estimator, debias)]
+    fits = _sweep(problem, lambdas, estimator, debias)
+    return Path(problem, fits, errors.mean(axis=0), errors.std(axis=0, ddof=1) / np.sqrt(folds))
+
+
+def _score(residual: np.ndarray) -> tuple[float, float]:
+    """Mean squared residual and its block standard error."""
+    sq = np.asarray(residual, dtype=float) ** 2
+    blocks = np.array([b.mean() for b in np.array_split(sq, BLOCKS)])
+    return float(sq.mean()), float(blocks.std(ddof=1) / np.sqrt(BLOCKS))
+
+
+@dataclass
+class Path:
+    """Solutions of one problem over a grid of :math:`\\lambda` (largest first)."""
+
+    problem: Problem
+    fits: list[Fit]
+    validation: np.ndarray  # validation MSE per lambda (nan without validation)
+    validation_se: np.ndarray  # its standard error, from contiguous blocks of residuals
+
+    @classmethod
+    def compute(
+        cls,
+        problem: Problem,
+        lambdas,
+        validate: Callable[[np.ndarray], np.ndarray] | None = None,
+        estimator: str = "lasso",
+        debias: bool = True,
+        folds: int | None = None,
+    ) -> "Path":
+        """Sweep ``lambdas`` (validated by ``validate`` or by blocked ``folds``-fold CV)."""
+        lambdas = np.sort(np.asarray(lambdas, dtype=float))[::-1]
+        if lambdas.size == 0 or not np.all(np.isfinite(lambdas)) or np.any(lambdas < 0):
+            raise CvxidError("lambdas must be a non-empty list of finite numbers >= 0")
+        if estimator not in ESTIMATORS:
+            raise CvxidError(f"unknown estimator '{estimator}'; use one of {', '.join(ESTIMATORS)}")
+        if folds is not None:
+            if validate is not None:
+                raise CvxidError("give either a validation function or folds, not both")
+            return _cross_validated(problem, lambdas, int(folds), estimator, debias)
+        fits = _sweep(problem, lambdas, estimator, debias)
+        scores = [_score(validate(f.coefficients)) if validate else (np.nan, np.nan) for f in fits]
+        return cls(problem, fits, np.array([s[0] for s in scores]), np.array([s[1] for s in scores]))
+
+    @property
+    def pareto(self) -> pd.DataFrame:
+        """The Pareto front: for each number of terms, the least training error."""
+        frame = self.table().reset_index()
+        front = frame.loc[frame.groupby("terms")["train_mse"].idxmin()]
+        return front.set_index("terms")[["lambda", "train_mse", "validation_error"]]
+
+    def plot(self, selected: float | None = None):
+        """Coefficient traces and validation error against log lambda (a matplotlib figure)."""
+        from cvxid.plots import path_figure
+
+        return path_figure(self, selected)
+
+    @property
+    def lambdas(self) -> np.ndarray:
+        return np.array([f.lam for f in self.fits])
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.problem.names
+
+    @property
+    def coefficients(self) -> pd.DataFrame:
+        """Coefficients (physical units): one row per lambda, one column per term."""
+        return pd.DataFrame(
+            [f.coefficients for f in self.fits],
+            index=pd.Index(self.lambdas, name="lambda"),
+            columns=list(self.names),
+        )
+
+    @property
+    def support_size(self) -> np.ndarray:
+        return np.array([int(f.support.sum()) for f in self.fits])
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame(
+            {
+                "terms": self.support_size,
+                "train_mse": [f.train_mse for f in self.fits],
+                "validation_error": self.validation,
+                "validation_se": self.validation_se,
+            },
+            index=pd.Index(self.lambdas, name="lambda"),
+        )
+
+    def best(self, rule: str = "min") -> Fit:
+        """The selected solution.
+
+        ``"min"``: least validation error (among equal errors, the largest lambda);
+        ``"1se"``: the largest lambda whose validation error is within one standard error of
+        the least (the sparsest model the data cannot tell apart from the best).
+        """
+        if rule not in SELECTION_RULES:
+            raise CvxidError(f"unknown selection rule '{rule}'; use one of {', '.join(SELECTION_RULES)}")
+        if np.all(np.isnan(self.validation)):
+            raise CvxidError("this path has no validation error; give a validation experiment")
+        i = int(np.nanargmin(self.validation))
+        bound = self.validation[i] * (1 + 1e-9)
+        if rule == "1se":
+            bound += self.validation_se[i]
+        ok = np.flatnonzero(self.validation <= bound)
+        return self.fits[int(ok[0])]
+
+    def __repr__(self) -> str:
+        return f"Path over {len(self.fits)} lambdas\n{self.table().to_string(float_format=lambda v: f'{v:.4g}')}"

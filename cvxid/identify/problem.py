@@ -1,0 +1,317 @@
+r"""The identification as a cvxpy problem.
+
+.. math::
+
+    \min_{\tilde c}\; \frac{1}{n}\,\|R\,\tilde c - r\|_2^2
+        + \lambda \sum_i w_i\,|\tilde c_i|
+    \quad\text{s.t.}\quad \tilde c_j \ge 0,\ j \in \mathcal{N},
+
+on the reduced, scaled regression (see :mod:`cvxid.regression.regression`): :math:`\lambda` is a
+``cp.Parameter``, so the problem is canonicalised once and re-solved for each value;
+:math:`w_i = 0` on inertia and delay columns; :math:`\mathcal{N}` are the named sign
+constraints.  Coefficients leave in physical units.  Scaling makes :math:`\lambda`
+dimensionless: the target has unit mean square, so :math:`\lambda \gtrsim 2` zeroes every
+penalised column.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import cvxpy as cp
+import numpy as np
+from scipy.linalg import solve_triangular
+from scipy.optimize import lsq_linear
+
+from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
+from cvxid.regression.regression import Reduced, Regression
+
+SOLVERS = ("CLARABEL", "OSQP")
+SOLVER_SETTINGS = {
+    # tight tolerances: the defaults misreport badly scaled problems (notes/solvers.md)
+    "CLARABEL": dict(tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10, tol_ktratio=1e-8),
+    "OSQP": dict(eps_abs=1e-9, eps_rel=1e-9, max_iter=200_000, polishing=True),
+}
+SUPPORT_TOL = 1e-7
+"""A scaled coefficient smaller than this (target has unit RMS) counts as zero."""
+
+
+@dataclass(frozen=True)
+class Fit:
+    """One solution of the problem."""
+
+    lam: float
+    coefficients: np.ndarray  # physical units
+    scaled: np.ndarray
+    support: np.ndarray  # boolean mask
+    objective: float
+    train_mse: float  # mean squared equation error, physical units
+    status: str
+    solver: str
+    seconds: float
+    names: tuple[str, ...] = field(default=())
+
+
+
+class Problem:
+    """A weighted-L1, sign-constrained least-squares problem over named coefficients.
+
+    Build it with :meth:`from_regression` (cvxid's own regressions) or :meth:`from_arrays`
+    (any user's regressors).
+    """
+
+    def __init__(
+        self,
+        reduced: Reduced,
+        names,
+        penalties,
+        nonnegative=(),
+        solver: str = "CLARABEL",
+        ties=(),
+    ):
+        self.reduced = reduced
+        self.names = tuple(names)
+        self.penalties = np.asarray(penalties, dtype=float)
+        k = len(self.names)
+        if self.penalties.shape != (k,) or np.any(self.penalties < 0):
+            raise CvxidError(f"weights must be {k} non-negative numbers, one per column")
+        unknown = [n for n in nonnegative if n not in self.names]
+        if unknown:
+            raise CvxidError(
+                f"nonnegative names unknown column(s) {', '.join(unknown)}; columns: {', '.join(self.names)}"
+            )
+        self.nonnegative = tuple(nonnegative)
+        self.ties = tuple((str(a), str(b), float(f)) for a, b, f in ties)
+        for a, b, f in self.ties:
+            if a not in self.names or b not in self.names or a == b or not np.isfinite(f):
+                raise CvxidError(
+                    f"tie {a} = {f:g} * {b}: both must be distinct columns ({', '.join(self.names)}) "
+                    "and the factor finite"
+                )
+        self.solver = str(solver).upper()
+        if self.solver not in SOLVERS:
+            raise CvxidError(f"unknown solver '{solver}'; use one of {', '.join(SOLVERS)}")
+        if self.solver == "OSQP":
+            warnings.warn(
+                "OSQP is not accurate on badly scaled regressions like these (notes/solvers.md); "
+                "results are checked, but prefer CLARABEL",
+                CvxidWarning,
+                stacklevel=2,
+            )
+        # Columns that are neither penalised nor constrained are projected out before the
+        # L1 solve (notes/solvers.md): a QR of R with those columns first splits
+        # ||R c - r||^2 into a block they can always zero and a block in the others only.
+        tied = {n for a, b, _ in self.ties for n in (a, b)}
+        free = [i for i in range(k) if self.penalties[i] == 0 and self.names[i] not in set(self.nonnegative) | tied]
+        self._free = np.array(free, dtype=int)
+        self._rest = np.array([i for i in range(k) if i not in free], dtype=int)
+        Q, Rp = np.linalg.qr(reduced.R[:, np.r_[self._free, self._rest]])
+        rp = Q.T @ reduced.r
+        u = len(free)
+        self._back = (Rp[:u, :u], Rp[:u, u:], rp[:u])  # c_free = R_uu^-1 (r_u - R_us c_rest)
+        self.c = cp.Variable(len(self._rest), name="c")
+        self.lam = cp.Parameter(nonneg=True, name="lambda", value=0.0)
+        self.objective = cp.sum_squares(Rp[u:, u:] @ self.c - rp[u:]) / reduced.rows + self.lam * cp.norm1(
+            cp.multiply(self.penalties[self._rest], self.c)
+        )
+        index = {self.names[i]: j for j, i in enumerate(self._rest)}
+        self.constraints = {f"c[{n}] >= 0": self.c[index[n]] >= 0 for n in self.nonnegative}
+        for a, b, f in self.ties:  # physical c_a = f c_b, in scaled units
+            self.constraints[f"c[{a}] = {f:g} c[{b}]"] = self.c[index[a]] == self._tie_factor(a, b, f) * self.c[index[b]]
+        self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
+        self.regression: Regression | None = None  # the rows behind the factor, when known
+
+    def _tie_factor(self, a: str, b: str, factor: float) -> float:
+        scale = self.reduced.column_scale
+        return factor * scale[self.names.index(a)] / scale[self.names.index(b)]
+
+    def _full(self, rest: np.ndarray) -> np.ndarray:
+        """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
+        out = np.zeros(self.k)
+        out[self._rest] = rest
+        if self._free.size:
+            Ruu, Rus, ru = self._back
+            out[self._free] = solve_triangular(Ruu, ru - Rus @ rest)
+        return out
+
+    # ------------------------------------------------------------------ builders
+    @classmethod
+    def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None, ties=()):
+        problem = cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver,
+                      ties)
+        problem.regression = regression
+        return problem
+
+    @classmethod
+    def from_arrays(cls, P, p, names, weights=None, nonnegative=(), solver="CLARABEL", ties=()):
+        """A problem from a user's own regressors ``P`` (n × k) and target ``p`` (n)."""
+        P = np.asarray(P, dtype=float)
+        p = np.asarray(p, dtype=float).ravel()
+        if P.ndim != 2 or P.shape[0] != p.size:
+            raise CvxidError(f"P must be (n, k) with n = len(p) = {p.size}; got shape {P.shape}")
+        if not (np.isfinite(P).all() and np.isfinite(p).all()):
+            raise CvxidError("P and p must be finite (no NaN/inf)")
+        names = list(names)
+        if len(names) != P.shape[1] or len(set(names)) != len(names):
+            raise CvxidError(f"names must be {P.shape[1]} distinct strings, one per column of P")
+        weights = np.ones(P.shape[1]) if weights is None else np.asarray(weights, dtype=float)
+        regression = Regression(P, p, tuple(names), tuple("library" for _ in names), weights)
+        return cls.from_regression(regression, nonnegative, solver, ties=ties)
+
+    # ------------------------------------------------------------------ solving
+    @property
+    def k(self) -> int:
+        return len(self.names)
+
+    def _attempt(self, settings: dict) -> str | None:
+        """One solve; the solver's error message, or None."""
+        try:
+            with warnings.catch_warnings():
+                # cvxpy's own "may be inaccurate" warning: the status is checked by solve()
+                warnings.filterwarnings("ignore", message="Solution may be inaccurate")
+                # warm_start=False: cvxpy otherwise updates its cached Clarabel solver in place,
+                # which returned "optimal_inaccurate" answers 5 % above the optimum on these
+                # problems where a fresh solve is exact (measured: cvxid bench, order 4)
+                self.cvxpy.solve(solver=self.solver, warm_start=False, **settings)
+        except cp.error.SolverError as exc:
+            return str(exc)
+        return None
+
+    def _finish(self, lam, scaled, status, seconds, objective=None) -> Fit:
+        red = self.reduced
+        scaled = np.asarray(scaled, dtype=float)
+        resid = red.R @ scaled - red.r
+        train = (resid @ resid + red.rho2) / red.rows
+        if objective is None:
+            objective = train + lam * float(self.penalties @ np.abs(scaled))
+        return Fit(
+            lam=float(lam),
+            coefficients=red.to_physical(scaled),
+            scaled=scaled,
+            support=np.abs(scaled) > SUPPORT_TOL,
+            objective=float(objective),
+            train_mse=float(train * red.target_scale**2),
+            status=status,
+            solver=self.solver,
+            seconds=seconds,
+            names=self.names,
+        )
+
+    def solve(self, lam: float) -> Fit:
+        """Solve at one value of :math:`\\lambda` (the problem is not rebuilt)."""
+        lam = float(lam)
+        if not np.isfinite(lam) or lam < 0:
+            raise CvxidError(f"lambda must be a finite number >= 0, got {lam}")
+        self.lam.value = lam
+        start = time.perf_counter()
+        error = self._attempt(SOLVER_SETTINGS[self.solver])
+        if self.solver == "CLARABEL" and (error is not None or self.cvxpy.status == cp.OPTIMAL_INACCURATE):
+            # the tight tolerances occasionally stall on badly scaled data: retry once with
+            # the solver's defaults and keep the retry if it is sound (notes/solvers.md)
+            error = self._attempt({})
+        if error is not None:
+            other = "OSQP" if self.solver == "CLARABEL" else "CLARABEL"
+            raise SolverFailure(
+                f"solver {self.solver} failed at lambda = {lam:.3g} ({error}); try solver = "
+                f"'{other}', a smaller library or a narrower lambda range"
+            )
+        seconds = time.perf_counter() - start
+        status = self.cvxpy.status
+        if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            raise SolverFailure(
+                f"the constraints cannot all hold together ({', '.join(self.constraints)}); "
+                "remove the one that contradicts the others"
+            )
+        if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.c.value is None:
+            raise SolverFailure(
+                f"solver {self.solver} stopped with status '{status}' at lambda = {lam:.3g}; "
+                "no solution is reported. Try solver = 'CLARABEL' or a smaller library"
+            )
+        if status == cp.OPTIMAL_INACCURATE:
+            warnings.warn(
+                f"solver {self.solver} reports an inaccurate solution at lambda = {lam:.3g}",
+                CvxidWarning,
+                stacklevel=2,
+            )
+        return self._polish(self._finish(lam, self._full(self.c.value), status, seconds))
+
+    def _polish(self, fit: Fit) -> Fit:
+        """Polish on the support: with the support and signs fixed the problem is a least
+        squares with a linear term, solved exactly; kept only if it keeps the signs and the
+        constraints and lowers the objective (interior-point solutions stop short of it)."""
+        S = np.flatnonzero(fit.support)
+        if S.size == 0 or self.ties:  # (the closed form below does not keep ties)
+            return fit
+        R, red = self.reduced.R[:, S], self.reduced
+        signs = np.sign(fit.scaled[S])
+        rhs = R.T @ red.r - 0.5 * fit.lam * red.rows * self.penalties[S] * signs
+        try:
+            cS = np.linalg.solve(R.T @ R, rhs)
+        except np.linalg.LinAlgError:
+            return fit
+        penalised = self.penalties[S] > 0
+        if np.any(np.sign(cS[penalised]) != signs[penalised]):
+            return fit
+        scaled = np.zeros(self.k)
+        scaled[S] = cS
+        if any(scaled[self.names.index(n)] < 0 for n in self.nonnegative):
+            return fit
+        polished = self._finish(fit.lam, scaled, fit.status, fit.seconds)
+        return polished if polished.objective < fit.objective else fit
+
+    def refit(self, support, lam: float = 0.0) -> Fit:
+        """Least squares on ``support`` (plus every unpenalised column), keeping the sign
+        constraints: the debiased estimate (scipy's bounded least squares)."""
+        mask = np.asarray(support, dtype=bool) | (self.penalties == 0)
+        for a, b, _ in self.ties:  # a tie keeps both of its columns or neither
+            ia, ib = self.names.index(a), self.names.index(b)
+            mask[ia] = mask[ib] = mask[ia] or mask[ib]
+        idx = np.flatnonzero(mask)
+        lower = np.array([0.0 if self.names[i] in self.nonnegative else -np.inf for i in idx])
+        start = time.perf_counter()
+        scaled = np.zeros(self.k)
+        if self.ties:
+            scaled[idx] = self._tied_least_squares(idx, lower)
+        else:
+            sol = lsq_linear(self.reduced.R[:, idx], self.reduced.r, bounds=(lower, np.inf), method="bvls")
+            if not sol.success:
+                raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
+            scaled[idx] = sol.x
+        fit = self._finish(lam, scaled, "optimal", time.perf_counter() - start)
+        return fit
+
+    def _tied_least_squares(self, idx: np.ndarray, lower: np.ndarray) -> np.ndarray:
+        """Least squares on columns ``idx`` with the sign bounds and the ties (cvxpy)."""
+        c = cp.Variable(idx.size)
+        where = {self.names[i]: j for j, i in enumerate(idx)}
+        cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
+        cons += [c[where[a]] == self._tie_factor(a, b, f) * c[where[b]] for a, b, f in self.ties]
+        problem = cp.Problem(cp.Minimize(cp.sum_squares(self.reduced.R[:, idx] @ c - self.reduced.r)), cons)
+        try:
+            problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
+        except cp.error.SolverError as exc:
+            raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
+        if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            raise SolverFailure("the sign constraints and the ties cannot all hold together")
+        if problem.status != cp.OPTIMAL:
+            raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
+        return c.value
+
+    def __str__(self) -> str:
+        red = self.reduced
+        lines = [
+            "minimize    (1/n) ||R c - r||^2 + lambda * sum_i w_i |c_i|",
+            f"  n = {red.rows:g} rows reduced to a {self.k}x{self.k} triangular factor R; "
+            f"{self._free.size} free column(s) projected out, {self._rest.size} in the cvxpy problem",
+            f"  lambda = {self.lam.value:g} (cvxpy Parameter), solver {self.solver}",
+        ]
+        if self.constraints:
+            lines.append("subject to  " + ", ".join(self.constraints))
+        lines.append(f"  {'column':<14} {'w_i':>4}  {'scale (c = c~ * s_p / s_i)':>26}")
+        for n, w, s in zip(self.names, self.penalties, red.column_scale):
+            lines.append(f"  {n:<14} {w:>4g}  {red.target_scale / s:>26.4e}")
+        return "\n".join(lines)
+
+    __repr__ = __str__

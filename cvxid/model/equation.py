@@ -1,0 +1,251 @@
+r"""The model being identified: :class:`ModelSpec`.
+
+.. math::
+
+    m\,\ddot x + \sum_i c_i\, g_i(x, \dot x) = f(t) + b\, x^{(q)}(t - \tau)
+
+A spec says which coordinate and input, whether the inertia :math:`m` is identified (or
+known), the library of candidate terms :math:`g_i`, the delayed feedback, the named sign
+constraints and the names of the physical parameters.  It owns the map between regression
+coefficients and physical parameters.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Mapping
+
+from cvxid.errors import CvxidError
+from cvxid.model.delay import DelayedFeedback
+from cvxid.model.library import Library
+from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
+
+INERTIA, DELAY, LIBRARY = "inertia", "delay", "library"
+
+
+@dataclass(frozen=True)
+class Column:
+    """One regression column: its term, its group and its L1 weight."""
+
+    term: Term
+    group: str
+
+    @property
+    def name(self) -> str:
+        return self.term.name
+
+    @property
+    def penalty(self) -> float:
+        """Weight of the L1 penalty: 0 on inertia and delay columns, 1 on the library."""
+        return 1.0 if self.group == LIBRARY else 0.0
+
+
+@dataclass(frozen=True)
+class ModelSpec:
+    """What to identify.
+
+    Parameters
+    ----------
+    library : Library
+        Candidate terms :math:`g_i` (left-hand side).
+    coordinate, input : str
+        Names of the measured coordinate (its second derivative is this equation's inertia)
+        and of the input.
+    others : tuple of str
+        In a coupled system, the other measured coordinates whose states the terms and the
+        delayed feedback may read (e.g. the alpha equation of a flexible joint reads theta).
+    inertia : bool
+        Identify :math:`m` (a column :math:`\\ddot x`); otherwise ``mass`` is known.
+    delay : DelayedFeedback, optional
+        The delayed feedback on the right-hand side.
+    nonnegative : tuple of str
+        Columns whose coefficient must be ``>= 0`` (term names; ``"x''"`` for inertia).
+    names : mapping
+        Physical parameter names for terms (``{"k1": "x"}``); the mass is ``m``, the delay
+        ``tau``.
+    orders : tuple, optional
+        User's algebraic orders ``(n, m)``; by default the smallest that remove every
+        initial condition.
+    """
+
+    library: Library
+    coordinate: str = "x"
+    input: str = "f"
+    inertia: bool = True
+    mass: float = 1.0
+    delay: DelayedFeedback | None = None
+    nonnegative: tuple[str, ...] = ()
+    names: Mapping[str, str] = field(default_factory=dict)
+    orders: tuple[int | None, int | None] = (None, None)
+    keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
+    others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
+
+    def __post_init__(self):
+        known = set(self.column_names)
+        for name in self.nonnegative:
+            if name not in known:
+                raise CvxidError(
+                    f"[model.constraints] nonnegative names '{name}', which is not a column of "
+                    f"the model; columns: {', '.join(self.column_names)}"
+                )
+        for tname in self.names.values():
+            parse_term(_bare(tname)[1], self.coordinates)  # a readable term (it may join the model later)
+        if not self.inertia and not self.mass > 0:
+            raise CvxidError(f"[model] mass must be positive when inertia = false, got {self.mass}")
+
+    # ------------------------------------------------------------------ columns
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        """This equation's coordinate first, then the others it may read."""
+        return (self.coordinate, *self.others)
+
+    @property
+    def inertia_term(self) -> Derivative:
+        return Derivative(self.coordinate, 2)
+
+    @property
+    def columns(self) -> list[Column]:
+        """Inertia, the library and the delay's Taylor columns, each once."""
+        cols: dict[str, Column] = {}
+        delay_names = {t.name for t in self.delay.taylor_terms()} if self.delay else set()
+        if self.inertia:
+            cols[self.inertia_term.name] = Column(self.inertia_term, INERTIA)
+        for term in self.library:
+            group = DELAY if term.name in delay_names else LIBRARY
+            cols.setdefault(term.name, Column(term, group))
+        if self.delay:
+            for term in self.delay.taylor_terms():
+                cols.setdefault(term.name, Column(term, DELAY))
+            if self.delay.exact and self.delay.gain is None:
+                term = self.delayed_term
+                cols[term.name] = Column(term, DELAY)
+        return list(cols.values())
+
+    @property
+    def delayed_term(self) -> DelayedSignal:
+        """The exact delayed signal (its column carries minus the unknown gain)."""
+        return DelayedSignal(self.delay.coordinate, self.delay.derivative)
+
+    @property
+    def column_names(self) -> list[str]:
+        return [c.name for c in self.columns]
+
+    @property
+    def highest_derivative(self) -> int:
+        high = 2
+        if self.delay:
+            high = max(high, self.delay.highest_order)
+        return high
+
+    @property
+    def needs_velocity(self) -> bool:
+        return any(c.term.needs_velocity for c in self.columns)
+
+    def with_library(self, library: Library) -> "ModelSpec":
+        keep = set(library.names) | {self.inertia_term.name}
+        if self.delay:
+            keep |= {t.name for t in self.delay.taylor_terms()}
+        return replace(
+            self,
+            library=library,
+            nonnegative=tuple(n for n in self.nonnegative if n in keep),
+            names={k: v for k, v in self.names.items() if parse_term(_bare(v)[1], self.coordinates).name in keep},
+        )
+
+    # ------------------------------------------------------------------ physics
+    def _derivative_order(self, name: str) -> int | None:
+        """Order d when column ``name`` is :math:`x^{(d)}` (x is order 0, x' order 1)."""
+        term = parse_term(name, self.coordinates)
+        if isinstance(term, Derivative):
+            return term.order
+        if term.name == self.coordinate:
+            return 0
+        if term.name == self.coordinate + "'":
+            return 1
+        return None
+
+    def physical_terms(
+        self, coefficients: Mapping[str, float], tau: float | None = None
+    ) -> tuple[float, dict[str, float], float | None, float | None]:
+        """Mass, each library term's own coefficient, the delay and the feedback gain, from
+        regression coefficients (column name → value).
+
+        With a Taylor delay, tau comes from the pure-delay columns and the delay's share is
+        removed from the columns it shares with physics.  With the exact delay, ``tau`` is
+        the delay the regression was built for and an unknown gain is minus its column's
+        coefficient.
+        """
+        coefs = dict(coefficients)
+        gain = self.delay.gain if self.delay else None
+        if self.delay and not self.delay.exact:
+            physical_orders = {self._derivative_order(n) for n in self.library.names}
+            if self.inertia:
+                physical_orders.add(2)
+            pure = {
+                t.order: coefs.get(t.name, 0.0)
+                for t in self.delay.taylor_terms()
+                if t.order not in physical_orders
+            }
+            tau = self.delay.estimate_tau(pure)
+            for t in self.delay.taylor_terms():
+                if t.order in physical_orders and t.name in coefs:
+                    coefs[t.name] -= self.delay.contribution(t.order, tau)
+        elif self.delay:
+            if tau is None:
+                raise CvxidError("an exact-delay model needs the delay tau it was fitted for")
+            if gain is None:
+                gain = -coefs.get(self.delayed_term.name, 0.0)
+        mass = coefs.get(self.inertia_term.name, 0.0) if self.inertia else self.mass
+        return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau, gain
+
+    def parameter_name(self, term_name: str) -> str:
+        """The physical name of a term's coefficient (``names`` in the spec, else the term)."""
+        return self.named_parameter(term_name)[0]
+
+    def named_parameter(self, term_name: str) -> tuple[str, float]:
+        """(physical name, sign): a name given as ``"-alpha"`` is minus the coefficient."""
+        for pname, tname in self.names.items():
+            sign, bare = _bare(tname)
+            if parse_term(bare, self.coordinates).name == term_name:
+                return pname, sign
+        return term_name, 1.0
+
+    def physical(self, coefficients: Mapping[str, float], tau: float | None = None) -> dict[str, float]:
+        """Physical parameters by name: ``m``, each term's coefficient, ``tau`` (and the
+        feedback ``gain`` when it was estimated)."""
+        mass, terms, tau, gain = self.physical_terms(coefficients, tau)
+        out = {"m": mass}
+        for n, v in terms.items():
+            pname, sign = self.named_parameter(n)
+            out[pname] = sign * v
+        if tau is not None:
+            out["tau"] = tau
+        if self.delay and self.delay.gain is None:
+            out["gain"] = gain
+        return out
+
+    def __repr__(self) -> str:
+        lhs = ("m " if self.inertia else f"{self.mass:g} ") + f"{self.coordinate}''"
+        rhs = self.input
+        if self.delay:
+            gain = "b" if self.delay.gain is None else f"{self.delay.gain:g}"
+            rhs += f" + {gain} {self.delay.signal}(t - tau)"
+        lines = [
+            f"ModelSpec: {lhs} + sum_i c_i g_i = {rhs}",
+            f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",
+        ]
+        if self.delay:
+            lines.append(f"  delay: exact, tau in [{self.delay.tau_min:g}, {self.delay.tau_max:g}]" if self.delay.exact
+                         else f"  delay: taylor, order {self.delay.taylor_order}")
+        if self.nonnegative:
+            lines.append(f"  constraints: {', '.join(n + ' >= 0' for n in self.nonnegative)}")
+        n, m = self.orders
+        if n is not None or m is not None:
+            lines.append(f"  algebraic orders: n = {n}, m = {m}")
+        return "\n".join(lines)
+
+
+def _bare(name: str) -> tuple[float, str]:
+    """A physical-name target ``"-alpha"`` as (-1, "alpha"); ``"alpha"`` as (1, "alpha")."""
+    name = name.strip()
+    return (-1.0, name[1:].strip()) if name.startswith("-") else (1.0, name)

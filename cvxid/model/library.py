@@ -1,0 +1,143 @@
+"""Libraries of candidate terms and the catalogue of physical effects.
+
+A :class:`Library` is an ordered set of :class:`~cvxid.model.terms.Term` objects.  The
+polynomial builder follows the paper's eq. (2), :math:`\\sum_{i\\le N}\\sum_{j\\le M} c_{ij}
+x^i \\dot x^j` with :math:`N = M`; the catalogue names physical effects so that users (and
+the diagnosis) can speak of *Coulomb friction* rather than of ``sign(x')``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Iterator
+
+from cvxid.errors import CvxidError
+from cvxid.model.terms import (
+    AbsProduct,
+    Constant,
+    DelayedSignal,
+    Monomial,
+    Sign,
+    Term,
+    parse_term,
+    velocity_symbol,
+)
+
+
+class Library:
+    """An ordered, duplicate-free collection of terms."""
+
+    def __init__(self, terms: Iterable[Term] = ()):
+        seen: dict[str, Term] = {}
+        for term in terms:
+            seen.setdefault(term.name, term)
+        self.terms: tuple[Term, ...] = tuple(seen.values())
+
+    @classmethod
+    def polynomial(cls, order: int, cross: bool = True, coordinate: str = "x") -> "Library":
+        """Monomials :math:`x^i \\dot x^j`, ``0 <= i, j <= order`` (not both 0); without
+        ``cross`` only pure powers :math:`x^i` and :math:`\\dot x^j`."""
+        order = int(order)
+        if order < 1:
+            raise CvxidError(f"library order must be at least 1, got {order}")
+        v = velocity_symbol(coordinate)
+        terms = []
+        for total in range(1, 2 * order + 1):  # low degrees first: reads like a Taylor series
+            for j in range(0, order + 1):
+                i = total - j
+                if 0 <= i <= order and (cross or i == 0 or j == 0):
+                    terms.append(Monomial({coordinate: i, v: j}))
+        return cls(terms)
+
+    def __add__(self, other: "Library | Iterable[Term]") -> "Library":
+        return Library([*self.terms, *(other.terms if isinstance(other, Library) else other)])
+
+    def without(self, names: Iterable[str]) -> "Library":
+        drop = set(names)
+        return Library(t for t in self.terms if t.name not in drop)
+
+    @property
+    def names(self) -> list[str]:
+        return [t.name for t in self.terms]
+
+    def __contains__(self, item) -> bool:
+        name = item.name if isinstance(item, Term) else item
+        return name in self.names
+
+    def __iter__(self) -> Iterator[Term]:
+        return iter(self.terms)
+
+    def __len__(self) -> int:
+        return len(self.terms)
+
+    def __repr__(self) -> str:
+        rows = [f"Library of {len(self)} terms:"]
+        rows += [f"  {t.name:<14} {t.meaning}" for t in self.terms]
+        return "\n".join(rows)
+
+
+# ---------------------------------------------------------------------- catalogue
+@dataclass(frozen=True)
+class Effect:
+    """A named physical effect: how to build its term for a coordinate, and its sign.
+
+    ``nonnegative`` says that the coefficient of a dissipative or restoring effect is
+    expected to be ``>= 0`` (the constraint that comes with it when it is added).
+    """
+
+    name: str
+    meaning: str
+    build: Callable[[str], Term]
+    nonnegative: bool
+
+    def plot(self, coordinate: str = "x"):
+        """The effect's signature: its force against the state it depends on."""
+        from cvxid.plots import signature_figure
+
+        return signature_figure(self, coordinate)
+
+
+CATALOGUE: dict[str, Effect] = {}
+
+
+def register_effect(name: str, meaning: str, build: Callable[[str], Term], nonnegative: bool = False):
+    """Add a user's own effect to the catalogue (``build(coordinate) -> Term``)."""
+    if not name.isidentifier():
+        raise CvxidError(f"effect name '{name}' must be an identifier (letters, digits, _)")
+    CATALOGUE[name] = Effect(name, meaning, build, nonnegative)
+    return CATALOGUE[name]
+
+
+register_effect("coulomb", "Coulomb (dry) friction, sign(x')", Sign, nonnegative=True)
+register_effect("viscous", "viscous damping, x'", lambda c: Monomial({velocity_symbol(c): 1}), True)
+register_effect("quadratic_damping", "quadratic damping, x'|x'|", AbsProduct, True)
+register_effect("cubic_damping", "cubic damping, x'^3", lambda c: Monomial({velocity_symbol(c): 3}), True)
+register_effect("linear_stiffness", "linear stiffness, x", lambda c: Monomial({c: 1}), True)
+register_effect("quadratic_stiffness", "quadratic stiffness (asymmetry), x^2", lambda c: Monomial({c: 2}))
+register_effect("cubic_stiffness", "cubic (hardening) stiffness, x^3", lambda c: Monomial({c: 3}))
+register_effect("offset", "constant force (offset, gravity, bias)", lambda c: Constant())
+register_effect(
+    "delay",
+    "a change of the delay tau: the delayed signal's time derivative (exact-delay models)",
+    lambda c: DelayedSignal(c, 1),
+)
+
+
+def effect(name: str) -> Effect:
+    if name not in CATALOGUE:
+        raise CvxidError(
+            f"unknown effect '{name}'; the catalogue has: {', '.join(sorted(CATALOGUE))}"
+        )
+    return CATALOGUE[name]
+
+
+def resolve_term(text: str, coordinates: tuple[str, ...] = ("x",)) -> Term:
+    """A term from a catalogue name (built for the first coordinate) or a term name."""
+    if text in CATALOGUE:
+        return CATALOGUE[text].build(coordinates[0])
+    if text.isidentifier() and text not in coordinates:
+        raise CvxidError(
+            f"unknown term or effect '{text}'; effects: {', '.join(sorted(CATALOGUE))}; "
+            f"terms are written like x, x^3, x^2 x', sign(x')"
+        )
+    return parse_term(text, coordinates)

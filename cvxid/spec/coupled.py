@@ -1,0 +1,281 @@
+"""Coupled problem specs: several ``[[model.equation]]`` tables, one shared delay, ties.
+
+The format (documented in ``problems/README.md``) extends the single-equation spec: each
+equation is a ``[model]``-like table; the shared delay is ``[model.delay]`` with each
+equation's known feedback gain as its ``delay_gain``; ``[[model.tie]]`` tables tie
+coefficients across equations; ``[[truth.equation]]`` tables describe the simulated truth.
+Like every spec it is checked key by key and never executed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Mapping
+
+from cvxid.coupled import CoupledSystem, Equation, simulate_coupled
+from cvxid.data.experiment import Experiment, load
+from cvxid.errors import CvxidError
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import resolve_term
+from cvxid.model.terms import Sign
+from cvxid.regression.velocity import ESTIMATORS
+from cvxid.simulate import HISTORIES
+from cvxid.spec.problem import (
+    SIM_KEYS,
+    DiagnoseSettings,
+    FitSettings,
+    Table,
+    _bool,
+    _fit,
+    _model,
+    _names,
+    _number,
+    _string,
+    _strings,
+    _table,
+    data_sections,
+    simulation_setup,
+)
+
+JOINT_TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
+JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
+EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
+DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
+JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window"}
+
+
+@dataclass(frozen=True)
+class JointTruth:
+    """The simulated coupled system and its physical parameters (for reports)."""
+
+    system: CoupledSystem
+    input: str
+    physical: dict[str, float]
+
+
+@dataclass(frozen=True)
+class JointProblemSpec:
+    """A parsed coupled spec: the equations' models (by coordinate), ties, fit settings,
+    data descriptions and the truth."""
+
+    name: str
+    folder: Path
+    equations: dict[str, ModelSpec]
+    ties: tuple[tuple[str, str, float], ...]
+    fit: FitSettings
+    data: dict[str, dict]
+    truth: JointTruth | None
+    description: str = ""
+    diagnose: DiagnoseSettings | None = None
+
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        return tuple(self.equations)
+
+    def experiment(self, which: str) -> Experiment:
+        """Load or simulate the ``train`` or ``test`` experiment."""
+        if which not in self.data:
+            raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
+        table = self.data[which]
+        if "simulate" in table:
+            return _simulated(self, which, _table(table, "simulate", f"data.{which}", SIM_KEYS))
+        where = f"data.{which}"
+        inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
+        velocity = table.get("velocity")
+        return load(
+            self.folder / _string(table, "file", where),
+            time=_string(table, "time", where, "t"),
+            outputs=_names(table.get("output", {c: c for c in self.coordinates}), self.coordinates[0], where, "output"),
+            inputs=_names(table.get("input", {i: i for i in inputs}), inputs[0], where, "input"),
+            velocities=_names(velocity, self.coordinates[0], where, "velocity") if velocity else None,
+            name=which,
+            gaps=_bool(table, "gaps", where, False),
+        )
+
+    def __repr__(self) -> str:
+        lines = [f"JointProblemSpec '{self.name}' ({self.folder}): {len(self.equations)} coupled equations"]
+        lines += [f"  {s!r}".replace("\n", "\n  ") for s in self.equations.values()]
+        lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in self.ties]
+        return "\n".join(lines)
+
+
+def is_joint(raw: Table) -> bool:
+    model = raw.get("model")
+    return isinstance(model, Mapping) and "equation" in model
+
+
+def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem") -> JointProblemSpec:
+    unknown = set(raw) - JOINT_TOP_KEYS
+    if unknown:
+        raise CvxidError(f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: "
+                         f"{', '.join(sorted(JOINT_TOP_KEYS))}")
+    model = _table(raw, "model", "", JOINT_MODEL_KEYS, required=True)
+    equations = _equations(model)
+    ties = _ties(model, equations)
+    fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
+    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "stlsq"))
+    fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
+    if fit.velocity not in ESTIMATORS + ("measured",):
+        raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)} or "
+                         f"'measured', got '{fit.velocity}'")
+    data = data_sections(raw)
+    truth = _truth(raw, equations) if "truth" in raw else None
+    if truth is None and any("simulate" in t for t in data.values()):
+        raise CvxidError("spec: simulated data needs a [truth] section with [[truth.equation]] tables")
+    diagnose = None
+    if "diagnose" in raw:
+        d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps"})
+        candidates = tuple(_strings(d, "candidates", "diagnose")) if "candidates" in d else None
+        for c in candidates or ():
+            resolve_term(c, tuple(equations))  # unknown names fail here, with the catalogue
+        diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
+                                    _number(d, "min_improvement", "diagnose", 0.2, positive=True),
+                                    _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
+    return JointProblemSpec(_string(raw, "name", "", default_name), folder, equations, ties, fit, data, truth,
+                            str(raw.get("description", "")), diagnose)
+
+
+def _equations(model: Table) -> dict[str, ModelSpec]:
+    tables = model.get("equation")
+    if not isinstance(tables, list) or len(tables) < 2 or not all(isinstance(t, Mapping) for t in tables):
+        raise CvxidError("spec: a coupled model needs two or more [[model.equation]] tables")
+    coords = []
+    for i, t in enumerate(tables):
+        coord = _string(t, "coordinate", f"model.equation[{i}]")
+        if coord in coords:
+            raise CvxidError(f"spec: two [[model.equation]] tables have the coordinate '{coord}'; each needs its own")
+        coords.append(coord)
+    delay = _table(model, "delay", "model", DELAY_KEYS, required=True)
+    if _string(delay, "method", "model.delay", "exact") != "exact":
+        raise CvxidError("spec: the shared delay of a coupled model is fitted exactly: [model.delay] method = \"exact\"")
+    equations, named = {}, {}
+    for i, t in enumerate(tables):
+        where = f"model.equation[{i}]"
+        table = _table({f"equation[{i}]": t}, f"equation[{i}]", "model", EQUATION_KEYS)
+        delay_t = dict(delay, method="exact")
+        if "delay_gain" in table:
+            delay_t["gain"] = _number(table, "delay_gain", where)
+        table = {k: v for k, v in table.items() if k != "delay_gain"}
+        table["delay"] = delay_t
+        others = tuple(c for c in coords if c != coords[i])
+        spec, _ = _model(table, where, others)
+        for pname in spec.names:
+            if pname in named:
+                raise CvxidError(f"spec: the physical name '{pname}' is given in two equations "
+                                 f"({named[pname]} and {spec.coordinate}); names must be unique")
+            named[pname] = spec.coordinate
+        equations[spec.coordinate] = spec
+    return equations
+
+
+def _ties(model: Table, equations: dict[str, ModelSpec]) -> tuple[tuple[str, str, float], ...]:
+    tables = model.get("tie", [])
+    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
+        raise CvxidError("spec: ties are [[model.tie]] tables with left, right and factor")
+    columns = {f"{c}:{n}" for c, s in equations.items() for n in s.column_names}
+    ties = []
+    for i, t in enumerate(tables):
+        where = f"model.tie[{i}]"
+        t = _table({f"tie[{i}]": t}, f"tie[{i}]", "model", {"left", "right", "factor"})
+        left, right = _string(t, "left", where), _string(t, "right", where)
+        for side in (left, right):
+            if side not in columns:
+                raise CvxidError(f"spec: [{where}] '{side}' is not a column; columns are written "
+                                 f"'equation:term', one of: {', '.join(sorted(columns))}")
+        ties.append((left, right, float(_number(t, "factor", where, 1.0))))
+    return tuple(ties)
+
+
+def joint_physical(specs: dict[str, ModelSpec], coefficients: Mapping[str, Mapping[str, float]], tau: float | None,
+                   extra_terms: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, float]:
+    """Physical parameters of every equation: a name from ``[model.equation.names]`` where
+    one is given (``"-alpha"`` is minus the coefficient), else ``"coordinate:term"``; the
+    inertia ``"coordinate:m"``; the delay ``tau``."""
+    out = {}
+    for coord, spec in specs.items():
+        mass, terms, _, gain = spec.physical_terms(coefficients[coord], tau)
+        terms = dict(terms, **(extra_terms or {}).get(coord, {}))
+        values = {spec.inertia_term.name: mass, **terms}
+        for term, value in values.items():
+            pname, sign = spec.named_parameter(term)
+            if pname == term:
+                pname = f"{coord}:m" if term == spec.inertia_term.name else f"{coord}:{term}"
+            out[pname] = sign * value
+        if spec.delay is not None and spec.delay.gain is None:
+            out[f"{coord}:gain"] = gain
+    if tau is not None:
+        out["tau"] = tau
+    return out
+
+
+def _truth(raw: Table, equations: dict[str, ModelSpec]) -> JointTruth:
+    t = _table(raw, "truth", "", {"equation", "delay", "history", "smoothing"})
+    tables = t.get("equation")
+    if not isinstance(tables, list) or not all(isinstance(e, Mapping) for e in tables):
+        raise CvxidError("spec: a coupled [truth] needs [[truth.equation]] tables")
+    coords = tuple(equations)
+    smoothing = t.get("smoothing", {})
+    if not isinstance(smoothing, Mapping):
+        raise CvxidError("spec: [truth] smoothing must be a table like { \"sign(x')\" = 0.05 }")
+    delay = _table(t, "delay", "truth", {"signal", "tau"}, required=True)
+    tau = _number(delay, "tau", "truth.delay", positive=True)
+    signal = _string(delay, "signal", "truth.delay", coords[0])
+    if signal not in coords:
+        raise CvxidError(f"spec: [truth.delay] signal must be one of the coordinates {', '.join(coords)}, got '{signal}'")
+    eqs, inputs, coefficients, extra = [], set(), {}, {}
+    for i, e in enumerate(tables):
+        where = f"truth.equation[{i}]"
+        e = _table({f"equation[{i}]": e}, f"equation[{i}]", "truth", {"coordinate", "mass", "input", "coefficients",
+                                                                     "delay_gain"})
+        coord = _string(e, "coordinate", where)
+        if coord not in coords:
+            raise CvxidError(f"spec: [{where}] coordinate '{coord}' has no [[model.equation]]; the model has "
+                             f"{', '.join(coords)}")
+        inp = _string(e, "input", where, equations[coord].input)
+        inputs.add(inp.lstrip("-").strip())
+        coefs_t = e.get("coefficients", {})
+        if not isinstance(coefs_t, Mapping):
+            raise CvxidError(f"spec: [{where}] coefficients must be a table of term = value")
+        terms, values = [], []
+        for name in coefs_t:
+            term = resolve_term(name, (coord, *(c for c in coords if c != coord)))
+            if isinstance(term, Sign) and name in smoothing:
+                term = Sign(term.coordinate, _number(smoothing, name, "truth.smoothing", positive=True))
+            terms.append(term)
+            values.append(_number(coefs_t, name, f"{where}.coefficients"))
+        mass = _number(e, "mass", where, 1.0, positive=True)
+        eqs.append(Equation(coord, mass, tuple(terms), tuple(values), -1.0 if inp.startswith("-") else 1.0,
+                            _number(e, "delay_gain", where, 0.0)))
+        spec = equations[coord]
+        coefficients[coord] = {spec.inertia_term.name: mass, **{t.name: v for t, v in zip(terms, values)}}
+        extra[coord] = {t.name: v for t, v in zip(terms, values) if t.name not in spec.library.names}
+    if sorted(e.coordinate for e in eqs) != sorted(coords):
+        raise CvxidError(f"spec: [[truth.equation]] must describe every coordinate ({', '.join(coords)}) once")
+    if len(inputs) != 1:
+        raise CvxidError(f"spec: the truth's equations must share one input (with or without a '-'), got {sorted(inputs)}")
+    history = _string(t, "history", "truth", "zero", choices=HISTORIES)
+    order = {c: i for i, c in enumerate(coords)}
+    system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
+    return JointTruth(system, inputs.pop(), joint_physical(equations, coefficients, tau, extra))
+
+
+def _per_coordinate(sim: Table, key: str, where: str, coords: tuple[str, ...]) -> dict[str, float]:
+    value = sim.get(key, 0.0)
+    if isinstance(value, Mapping):
+        unknown = set(value) - set(coords)
+        if unknown:
+            raise CvxidError(f"spec: [{where}] {key} names unknown coordinate(s) {', '.join(sorted(unknown))}")
+        return {c: float(_number(value, c, f"{where}.{key}", 0.0)) for c in coords}
+    return {c: float(_number(sim, key, where, 0.0)) for c in coords}
+
+
+def _simulated(spec: JointProblemSpec, which: str, sim: Table) -> Experiment:
+    where = f"data.{which}.simulate"
+    t, force, sx, sf, rng = simulation_setup(sim, where)
+    coords = spec.coordinates
+    x, v = simulate_coupled(spec.truth.system, t, force, _per_coordinate(sim, "x0", where, coords),
+                            _per_coordinate(sim, "v0", where, coords))
+    outputs = {c: x[c] + sx * rng.standard_normal(t.size) for c in coords}
+    return Experiment(t, outputs, {spec.truth.input: force(t) + sf * rng.standard_normal(t.size)}, name=which,
+                      velocities=v)

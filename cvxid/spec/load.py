@@ -1,0 +1,108 @@
+"""Reading a spec file: one ``[model]`` or several ``[[model.equation]]`` tables.
+
+A single equation written as one ``[[model.equation]]`` (with the shared ``[model.delay]``
+and one ``[[truth.equation]]``) is the same problem as its ``[model]`` form: it is rewritten
+into that form and read by the same checks, so both give the same numbers.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Mapping
+
+from cvxid.errors import CvxidError
+from cvxid.spec.coupled import JointProblemSpec, is_joint, parse_joint_problem
+from cvxid.spec.problem import ProblemSpec, Table, parse_single_problem
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+def load_problem(path) -> ProblemSpec | JointProblemSpec:
+    """Read and check a TOML problem spec."""
+    path = Path(path)
+    if not path.is_file():
+        raise CvxidError(f"spec file not found: {path}")
+    try:
+        raw = tomllib.loads(path.read_text(encoding="utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise CvxidError(f"{path}: not valid TOML ({exc})") from None
+    return parse_problem(raw, path.parent.resolve(), default_name=path.stem)
+
+
+def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec | JointProblemSpec:
+    """A :class:`~cvxid.spec.problem.ProblemSpec` for one equation (``[model]`` or a single
+    ``[[model.equation]]``), a :class:`~cvxid.spec.coupled.JointProblemSpec` for several."""
+    if not is_joint(raw):
+        return parse_single_problem(raw, folder, default_name)
+    equations = raw["model"].get("equation")
+    if isinstance(equations, list) and len(equations) == 1:
+        return parse_single_problem(single_equation_form(raw), folder, default_name)
+    return parse_joint_problem(raw, folder, default_name)
+
+
+def single_equation_form(raw: Table) -> dict:
+    """A spec with one ``[[model.equation]]`` rewritten with ``[model]``: the equation's
+    keys, the shared delay with the equation's ``delay_gain`` as its gain; likewise the
+    truth's one ``[[truth.equation]]`` and per-coordinate initial states."""
+    out = dict(raw)
+    model = dict(raw["model"])
+    if "tie" in model:
+        raise CvxidError("spec: [[model.tie]] in a one-equation spec: ties within one equation are not supported "
+                         "yet; remove the tie or write the model with the tied terms combined")
+    (equation,) = model.pop("equation")
+    if not isinstance(equation, Mapping):
+        raise CvxidError("spec: [[model.equation]] must be a table")
+    single = {k: v for k, v in equation.items() if k != "delay_gain"}
+    if "delay" in model:
+        delay = dict(model.pop("delay"))
+        if not isinstance(delay, Mapping):
+            raise CvxidError("spec: [model.delay] must be a table")
+        delay.setdefault("method", "exact")
+        if "delay_gain" in equation:
+            delay["gain"] = equation["delay_gain"]
+        single["delay"] = delay
+    if model:
+        raise CvxidError(f"spec: [model] key(s) {', '.join(sorted(model))} beside [[model.equation]]; move them into "
+                         "the equation's table")
+    out["model"] = single
+    coordinate = single.get("coordinate", "x")
+    if isinstance(raw.get("truth"), Mapping) and "equation" in raw["truth"]:
+        out["truth"] = _single_truth(raw["truth"])
+    if isinstance(raw.get("data"), Mapping):
+        out["data"] = {k: _single_data(v, coordinate) for k, v in raw["data"].items()}
+    return out
+
+
+def _single_truth(truth: Table) -> dict:
+    truth = dict(truth)
+    equations = truth.pop("equation")
+    if not isinstance(equations, list) or len(equations) != 1 or not isinstance(equations[0], Mapping):
+        raise CvxidError("spec: a one-equation model needs exactly one [[truth.equation]] table")
+    (equation,) = equations
+    if "smoothing" in truth:
+        raise CvxidError("spec: [truth] smoothing is for coupled specs; write the smoothed term in [truth] "
+                         "coefficients instead")
+    single = {k: v for k, v in equation.items() if k in ("mass", "coefficients")}
+    unknown = set(equation) - {"coordinate", "mass", "coefficients", "delay_gain", "input"}
+    if unknown:
+        raise CvxidError(f"spec: [[truth.equation]] unknown key(s) {', '.join(sorted(unknown))}")
+    if "delay" in truth:
+        delay = dict(truth.pop("delay"))
+        delay["gain"] = equation.get("delay_gain", 0.0)
+        single["delay"] = delay
+    return {**single, **truth}
+
+
+def _single_data(section, coordinate: str):
+    """Per-coordinate initial states ``x0 = { x = 0.3 }`` as plain numbers."""
+    if not isinstance(section, Mapping) or not isinstance(section.get("simulate"), Mapping):
+        return section
+    simulate = dict(section["simulate"])
+    for key in ("x0", "v0"):
+        if isinstance(simulate.get(key), Mapping):
+            simulate[key] = simulate[key].get(coordinate, 0.0)
+    return {**section, "simulate": simulate}

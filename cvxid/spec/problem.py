@@ -1,0 +1,424 @@
+"""Problem specs: declarative TOML files (see ``problems/README.md``), read without ``eval``.
+
+Every table and key is checked: an unknown key, a wrong type or a missing file is a
+:class:`~cvxid.errors.CvxidError` that names the key and the fix.  Numbers are numbers and
+strings are names; nothing in a spec is ever executed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from cvxid.data.excitation import excitation
+from cvxid.data.experiment import Experiment, load
+from cvxid.errors import CvxidError
+from cvxid.identify.bootstrap import BootstrapSettings
+from cvxid.identify.path import SELECTION_RULES
+from cvxid.identify.problem import SOLVERS
+from cvxid.model.delay import METHODS, DelayedFeedback
+from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library, resolve_term
+from cvxid.model.terms import parse_term
+from cvxid.regression.velocity import ESTIMATORS
+from cvxid.simulate import HISTORIES, System, simulate
+
+Table = Mapping[str, Any]
+
+
+# ---------------------------------------------------------------------- checking helpers
+def _table(parent: Table, key: str, where: str, allowed: set[str], required: bool = False) -> dict:
+    value = parent.get(key)
+    path = f"{where}.{key}" if where else key
+    if value is None:
+        if required:
+            raise CvxidError(f"spec: missing section [{path}]")
+        return {}
+    if not isinstance(value, Mapping):
+        raise CvxidError(f"spec: [{path}] must be a table of keys, got {type(value).__name__}")
+    unknown = set(value) - allowed
+    if unknown:
+        raise CvxidError(
+            f"spec: unknown key(s) {', '.join(sorted(unknown))} in [{path}]; allowed: {', '.join(sorted(allowed))}"
+        )
+    return dict(value)
+
+
+def _number(table: Table, key: str, where: str, default=None, positive=False, integer=False):
+    value = table.get(key, default)
+    if value is None:
+        raise CvxidError(f"spec: [{where}] needs '{key}'")
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CvxidError(f"spec: [{where}] {key} must be a number, got {value!r}")
+    if not np.isfinite(value):
+        raise CvxidError(f"spec: [{where}] {key} must be finite, got {value!r}")
+    if integer and int(value) != value:
+        raise CvxidError(f"spec: [{where}] {key} must be a whole number, got {value!r}")
+    if positive and value <= 0:
+        raise CvxidError(f"spec: [{where}] {key} must be positive, got {value!r}")
+    return int(value) if integer else float(value)
+
+
+def _string(table: Table, key: str, where: str, default=None, choices=None) -> str:
+    value = table.get(key, default)
+    if value is None:
+        raise CvxidError(f"spec: [{where}] needs '{key}'")
+    if not isinstance(value, str):
+        raise CvxidError(f"spec: [{where}] {key} must be a string, got {value!r}")
+    if choices and value not in choices:
+        raise CvxidError(f"spec: [{where}] {key} must be one of {', '.join(choices)}, got '{value}'")
+    return value
+
+
+def _strings(table: Table, key: str, where: str) -> list[str]:
+    value = table.get(key, [])
+    if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
+        raise CvxidError(f"spec: [{where}] {key} must be a list of strings, got {value!r}")
+    return list(value)
+
+
+def _bool(table: Table, key: str, where: str, default: bool) -> bool:
+    value = table.get(key, default)
+    if not isinstance(value, bool):
+        raise CvxidError(f"spec: [{where}] {key} must be true or false, got {value!r}")
+    return value
+
+
+# ---------------------------------------------------------------------- the spec
+@dataclass(frozen=True)
+class Truth:
+    """The true system of a simulated problem (also the reference in reports)."""
+
+    system: System
+    physical: dict[str, float]
+
+
+@dataclass(frozen=True)
+class FitSettings:
+    estimator: str = "lasso"
+    lambdas: np.ndarray = field(default_factory=lambda: np.logspace(-6, 2, 50))
+    velocity: str = "savgol"
+    solver: str = "CLARABEL"
+    debias: bool = True
+    selection: str = "min"
+    bootstrap: "BootstrapSettings | None" = None
+    orders: tuple[int, ...] = ()
+    refine: str | None = None
+    window: float | None = None
+    loss: str = "squared"
+
+
+@dataclass(frozen=True)
+class ProblemSpec:
+    """A parsed problem: name, model, fit settings, data descriptions and the truth."""
+
+    name: str
+    folder: Path
+    model: ModelSpec
+    fit: FitSettings
+    data: dict[str, dict]
+    truth: Truth | None
+    description: str = ""
+    polynomial: tuple[int, bool, tuple[str, ...]] | None = None  # (order, cross, extra) of the library
+    diagnose: "DiagnoseSettings | None" = None
+
+    def library(self, order: int) -> Library:
+        """The spec's polynomial library at another order (for the order search)."""
+        if self.polynomial is None:
+            raise CvxidError("the order search needs a polynomial library ([model.library] order = …), not a term list")
+        _, cross, extra = self.polynomial
+        coord = self.model.coordinate
+        return Library.polynomial(order, cross, coord) + [resolve_term(e, (coord,)) for e in extra]
+
+    def experiment(self, which: str) -> Experiment:
+        """Load or simulate the ``train`` or ``test`` experiment."""
+        if which not in self.data:
+            raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
+        return _experiment(self, which, self.data[which])
+
+    def __repr__(self) -> str:
+        return (
+            f"ProblemSpec '{self.name}' ({self.folder})\n{self.model!r}\n"
+            f"  fit: {self.fit.estimator}, {len(self.fit.lambdas)} lambdas, velocity {self.fit.velocity}, "
+            f"solver {self.fit.solver}\n  data: {', '.join(self.data)}"
+        )
+
+
+TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
+DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
+SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
+MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
+FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
+            "refine", "window", "loss"}
+
+
+def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
+    """A :class:`ProblemSpec` from a spec with one ``[model]`` table."""
+    unknown = set(raw) - TOP_KEYS
+    if unknown:
+        raise CvxidError(
+            f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}"
+        )
+    name = _string(raw, "name", "", default_name)
+    model, polynomial = _model(_table(raw, "model", "", MODEL_KEYS, required=True))
+    fit = _fit(_table(raw, "fit", "", FIT_KEYS))
+    data = data_sections(raw)
+    truth = _truth(raw, model) if "truth" in raw else None
+    if truth is None and any("simulate" in t for t in data.values()):
+        raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
+    diag = _diagnose(raw, model) if "diagnose" in raw else None
+    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial, diag)
+
+
+def data_sections(raw: Table) -> dict[str, dict]:
+    """The checked ``[data.train]`` (required) and ``[data.test]`` tables: each a file or a
+    simulation."""
+    data_table = _table(raw, "data", "", {"train", "test"}, required=True)
+    data = {k: _table(data_table, k, "data", DATA_KEYS) for k in data_table}
+    if "train" not in data:
+        raise CvxidError("spec: missing section [data.train]")
+    for which, table in data.items():
+        if ("file" in table) == ("simulate" in table):
+            raise CvxidError(f"spec: [data.{which}] needs exactly one of 'file' or a [data.{which}.simulate] table")
+    return data
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    candidates: tuple[str, ...] | None = None  # None: the catalogue minus the model
+    refine: bool = False
+    min_improvement: float = 0.2
+    max_steps: int = 5
+
+
+def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
+    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps"})
+    candidates = None
+    if "candidates" in d:
+        candidates = tuple(_strings(d, "candidates", "diagnose"))
+        for c in candidates:
+            resolve_term(c, (model.coordinate,))  # unknown names fail here, with the catalogue
+    return DiagnoseSettings(
+        candidates=candidates,
+        refine=_bool(d, "refine", "diagnose", False),
+        min_improvement=_number(d, "min_improvement", "diagnose", 0.2, positive=True),
+        max_steps=_number(d, "max_steps", "diagnose", 5, positive=True, integer=True),
+    )
+
+
+def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> tuple[ModelSpec, tuple | None]:
+    """One equation's model; in a coupled spec ``others`` are the coordinates its terms and
+    its delayed feedback may read."""
+    coord = _string(table, "coordinate", where, "x")
+    coords = (coord, *others)
+    lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms"})
+    extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
+    polynomial = None
+    if "terms" in lib_t:
+        library = Library(parse_term(t, coords) for t in _strings(lib_t, "terms", f"{where}.library"))
+    else:
+        order = _number(lib_t, "order", f"{where}.library", 3, positive=True, integer=True)
+        polynomial = (order, _bool(lib_t, "cross", f"{where}.library", True), extra)
+        library = Library.polynomial(order, polynomial[1], coord)
+    library = library + [resolve_term(e, coords) for e in extra]
+    delay = None
+    if "delay" in table:
+        dw = f"{where}.delay"
+        d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method", "tau_min", "tau_max", "history"})
+        signal = _string(d, "signal", dw, coord)
+        if signal.rstrip("'") not in coords or len(signal) - len(signal.rstrip("'")) > 1:
+            choices = " or ".join(f"'{c}' or \"{c}'\"" for c in coords)
+            raise CvxidError(f"spec: [{dw}] signal must be {choices}, got '{signal}'")
+        delay = DelayedFeedback(
+            coordinate=signal.rstrip("'"),
+            derivative=len(signal) - len(signal.rstrip("'")),
+            gain=_number(d, "gain", dw) if "gain" in d else None,
+            taylor_order=_number(d, "taylor_order", dw, 3, positive=True, integer=True),
+            method=_string(d, "method", dw, "taylor", choices=METHODS),
+            tau_min=_number(d, "tau_min", dw, 0.0),
+            tau_max=_number(d, "tau_max", dw, 0.5, positive=True),
+            history=_string(d, "history", dw, "zero", choices=HISTORIES),
+        )
+        if delay.exact and "taylor_order" in d:
+            raise CvxidError(f"spec: [{dw}] taylor_order has no meaning with method = 'exact'; remove it")
+    cons = _table(table, "constraints", where, {"nonnegative"})
+    names_t = table.get("names", {})
+    if not isinstance(names_t, Mapping):
+        raise CvxidError(f"spec: [{where}.names] must be a table of parameter = \"term\"")
+    names = {}
+    for k, v in names_t.items():
+        if not isinstance(v, str):
+            raise CvxidError(f"spec: [{where}.names] {k} must be a term name string, got {v!r}")
+        names[k] = v
+    alg = _table(table, "algebraic", where, {"n", "m", "keep_initial_conditions"})
+    nonneg = tuple(parse_term(n, coords).name for n in _strings(cons, "nonnegative", f"{where}.constraints"))
+    columns = set(library.names) | {coord + "''"}
+    for pname, tname in names.items():
+        if parse_term(tname.lstrip("- "), coords).name not in columns:
+            raise CvxidError(f"spec: [{where}.names] {pname} = '{tname}' is not a term of the library")
+    return ModelSpec(
+        library=library,
+        coordinate=coord,
+        input=_string(table, "input", where, "f"),
+        inertia=_bool(table, "inertia", where, True),
+        mass=_number(table, "mass", where, 1.0, positive=True),
+        delay=delay,
+        nonnegative=nonneg,
+        names=names,
+        orders=(
+            _number(alg, "n", f"{where}.algebraic", integer=True) if "n" in alg else None,
+            _number(alg, "m", f"{where}.algebraic", integer=True) if "m" in alg else None,
+        ),
+        keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
+        others=tuple(others),
+    ), polynomial
+
+
+def _fit(table: Table) -> FitSettings:
+    where = "fit"
+    lambdas = np.logspace(-6, 2, 50)
+    if "lambdas" in table:
+        lt = _table(table, "lambdas", where, {"min", "max", "count"})
+        lo = _number(lt, "min", "fit.lambdas", positive=True)
+        hi = _number(lt, "max", "fit.lambdas", positive=True)
+        count = _number(lt, "count", "fit.lambdas", 50, positive=True, integer=True)
+        if lo > hi:
+            raise CvxidError(f"spec: [fit.lambdas] min ({lo:g}) is larger than max ({hi:g})")
+        lambdas = np.logspace(np.log10(lo), np.log10(hi), count)
+    velocity = _string(table, "velocity", where, "savgol")
+    solver = _string(table, "solver", where, "CLARABEL").upper()
+    if solver not in SOLVERS:
+        raise CvxidError(f"spec: [fit] solver must be one of {', '.join(SOLVERS)}, got '{solver}'")
+    return FitSettings(
+        estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "lstsq", "stepwise_oe")),
+        lambdas=lambdas,
+        velocity=velocity,
+        solver=solver,
+        debias=_bool(table, "debias", where, True),
+        selection=_string(table, "selection", where, "min", choices=SELECTION_RULES),
+        bootstrap=_bootstrap(table),
+        orders=_orders(table),
+        refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
+        window=_number(table, "window", where, positive=True) if "window" in table else None,
+        loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
+    )
+
+
+def _bootstrap(table: Table) -> BootstrapSettings | None:
+    if "bootstrap" not in table:
+        return None
+    b = _table(table, "bootstrap", "fit", {"samples", "fraction", "seed"})
+    return BootstrapSettings(
+        samples=_number(b, "samples", "fit.bootstrap", 30, positive=True, integer=True),
+        fraction=_number(b, "fraction", "fit.bootstrap", 0.5, positive=True),
+        seed=_number(b, "seed", "fit.bootstrap", 0, integer=True),
+        n_jobs=_number(table, "n_jobs", "fit", 1, integer=True),
+    )
+
+
+def _orders(table: Table) -> tuple[int, ...]:
+    if "orders" not in table:
+        return ()
+    o = _table(table, "orders", "fit", {"min", "max"})
+    lo = _number(o, "min", "fit.orders", 1, positive=True, integer=True)
+    hi = _number(o, "max", "fit.orders", positive=True, integer=True)
+    if lo > hi or hi > 12:
+        raise CvxidError(f"spec: [fit.orders] needs 1 <= min <= max <= 12, got {lo}..{hi}")
+    return tuple(range(lo, hi + 1))
+
+
+def _truth(raw: Table, model: ModelSpec) -> Truth:
+    where = "truth"
+    t = _table(raw, "truth", "", {"mass", "coefficients", "delay", "history"})
+    coord = model.coordinate
+    coefs_t = t.get("coefficients", {})
+    if not isinstance(coefs_t, Mapping):
+        raise CvxidError("spec: [truth] coefficients must be a table of term = value")
+    terms, values = [], []
+    for name, value in coefs_t.items():
+        terms.append(resolve_term(name, (coord,)))
+        values.append(_number(coefs_t, name, "truth.coefficients"))
+    mass = _number(t, "mass", where, 1.0, positive=True)
+    gain = tau = 0.0
+    derivative = 0
+    if "delay" in t:
+        d = _table(t, "delay", where, {"signal", "gain", "tau"})
+        signal = _string(d, "signal", "truth.delay", coord)
+        derivative = len(signal) - len(coord)
+        gain = _number(d, "gain", "truth.delay")
+        tau = _number(d, "tau", "truth.delay")
+        if tau < 0:
+            raise CvxidError(f"spec: [truth.delay] tau must be >= 0, got {tau}")
+    history = _string(t, "history", where, "zero", choices=HISTORIES)
+    system = System(tuple(terms), np.array(values), mass, coord, gain, tau, derivative, history)
+    physical = {"m": mass}
+    for term, value in zip(terms, values):
+        pname, sign = model.named_parameter(term.name)
+        physical[pname] = sign * value
+    if "delay" in t:
+        physical["tau"] = tau
+    return Truth(system, physical)
+
+
+# ---------------------------------------------------------------------- experiments
+def _names(value, default_key: str, where: str, key: str) -> dict[str, str]:
+    if isinstance(value, str):
+        return {default_key: value}
+    if isinstance(value, Mapping) and all(isinstance(v, str) for v in value.values()):
+        return dict(value)
+    raise CvxidError(f"spec: [{where}] {key} must be a column name or a table of names, got {value!r}")
+
+
+def _experiment(spec: ProblemSpec, which: str, table: Table) -> Experiment:
+    where = f"data.{which}"
+    model = spec.model
+    if "simulate" in table:
+        return _simulated(spec, which, _table(table, "simulate", where, SIM_KEYS))
+    file = spec.folder / _string(table, "file", where)
+    velocity = table.get("velocity")
+    if velocity is None and spec.fit.velocity not in ESTIMATORS + ("measured", "auto"):
+        velocity = spec.fit.velocity  # [fit] velocity names a measured column
+    return load(
+        file,
+        time=_string(table, "time", where, "t"),
+        outputs=_names(table.get("output", model.coordinate), model.coordinate, where, "output"),
+        inputs=_names(table.get("input", model.input), model.input, where, "input"),
+        velocities=_names(velocity, model.coordinate, where, "velocity") if velocity else None,
+        name=which,
+        gaps=_bool(table, "gaps", where, False),
+    )
+
+
+def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
+    where = f"data.{which}.simulate"
+    t, force, sx, sf, rng = simulation_setup(sim, where)
+    x, v = simulate(spec.truth.system, t, force, _number(sim, "x0", where, 0.0), _number(sim, "v0", where, 0.0))
+    model = spec.model
+    return Experiment(
+        t,
+        {model.coordinate: x + sx * rng.standard_normal(t.size)},
+        {model.input: force(t) + sf * rng.standard_normal(t.size)},
+        name=which,
+        velocities={model.coordinate: v},  # the simulator's true velocity, for velocity = "measured"
+    )
+
+
+def simulation_setup(sim: Table, where: str):
+    """Time grid, input function, output and input noise levels and the seeded generator
+    of a ``[data.*.simulate]`` table."""
+    duration = _number(sim, "duration", where, positive=True)
+    dt = _number(sim, "dt", where, positive=True)
+    n = int(round(duration / dt)) + 1
+    if n < 20 or n > 5_000_000:
+        raise CvxidError(f"spec: [{where}] duration/dt gives {n} samples; use between 20 and 5,000,000")
+    components = sim.get("input")
+    if not isinstance(components, list) or not all(isinstance(c, Mapping) for c in components):
+        raise CvxidError(f"spec: [{where}] input must be a list of tables like {{kind = \"sine\", ...}}")
+    force = excitation(components, where + ".input")
+    noise = _table(sim, "noise", where, {"output", "input"})
+    rng = np.random.default_rng(_number(sim, "seed", where, 0, integer=True))
+    return (np.arange(n) * dt, force, _number(noise, "output", where + ".noise", 0.0),
+            _number(noise, "input", where + ".noise", 0.0), rng)

@@ -1,0 +1,85 @@
+"""A single equation is a system with N = 1: its spec may be written with ``[model]`` or
+with one ``[[model.equation]]`` (the coupled format), and both give the same model."""
+
+import numpy as np
+import pytest
+
+from cvxid.app.run import run
+from cvxid.errors import CvxidError
+from cvxid.spec.load import parse_problem
+from cvxid.spec.problem import ProblemSpec
+
+from .conftest import ROOT
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # pragma: no cover
+    import tomli as tomllib
+
+DATA = """
+[data.train.simulate]
+duration = 4.0
+dt = 2e-3
+seed = 1
+noise = { output = 0.001, input = 0.0 }
+input = [{ kind = "sine", amplitude = 3.0, omega = 1.9 }, { kind = "sine", amplitude = 2.0, omega = 4.7 }]
+[data.test.simulate]
+duration = 4.0
+dt = 2e-3
+seed = 2
+noise = { output = 0.001, input = 0.0 }
+input = [{ kind = "sine", amplitude = 2.5, omega = 2.9 }, { kind = "sine", amplitude = 2.5, omega = 6.1 }]
+[fit]
+estimator = "lstsq"
+"""
+
+MODEL_FORM = """
+[truth]
+mass = 1.0
+coefficients = { "x'" = 0.4, "x" = 6.0 }
+delay = { signal = "x", gain = 1.5, tau = 0.15 }
+[model]
+library = { terms = ["x", "x'"] }
+delay = { signal = "x", gain = 1.5, method = "exact", tau_max = 0.4 }
+names = { k = "x", c = "x'" }
+""" + DATA
+
+EQUATION_FORM = """
+[truth]
+delay = { signal = "x", tau = 0.15 }
+[[truth.equation]]
+coordinate = "x"
+mass = 1.0
+coefficients = { "x'" = 0.4, "x" = 6.0 }
+delay_gain = 1.5
+[model]
+delay = { signal = "x", method = "exact", tau_max = 0.4 }
+[[model.equation]]
+coordinate = "x"
+library = { terms = ["x", "x'"] }
+names = { k = "x", c = "x'" }
+delay_gain = 1.5
+""" + DATA
+
+
+def _spec(text: str):
+    return parse_problem(tomllib.loads(text), ROOT)
+
+
+def test_one_equation_table_is_the_model_form():
+    a, b = _spec(MODEL_FORM), _spec(EQUATION_FORM)
+    assert isinstance(b, ProblemSpec) and repr(a.model) == repr(b.model)
+    assert a.model.library.names == b.model.library.names and a.model.names == b.model.names
+    np.testing.assert_array_equal(a.experiment("train").output("x"), b.experiment("train").output("x"))
+
+
+def test_both_forms_identify_the_same_coefficients():
+    a, b = run(_spec(MODEL_FORM)), run(_spec(EQUATION_FORM))
+    assert a.model.coefficients == pytest.approx(b.model.coefficients, rel=1e-12)
+    assert b.model.physical["k"] == pytest.approx(6.0, rel=0.01)
+    assert b.model.physical["tau"] == pytest.approx(0.15, rel=0.02)
+
+
+def test_keys_beside_the_equation_are_named():
+    with pytest.raises(CvxidError, match="library"):
+        _spec(EQUATION_FORM.replace("[model]\n", "[model]\nlibrary = { terms = [\"x\"] }\n"))
