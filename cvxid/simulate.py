@@ -1,19 +1,28 @@
-r"""Simulation of a delayed second-order system.
+r"""Simulation of delayed second-order systems: one integrator for N >= 1 coordinates.
 
 .. math::
 
-    m\,\ddot x + \sum_i c_i\, g_i(x, \dot x) = f(t) + b\, x^{(q)}(t - \tau)
+    m_i\,\ddot q_i + \sum_j c_{ij}\, g_{ij}(q, \dot q) = \beta_i\, u_i(t) + b_i\, q_d^{(r)}(t-\tau),
+    \qquad i = 1..N,
 
-is integrated with the classical fixed-step Runge–Kutta method.  The delayed state is read
-from a history buffer by cubic Hermite interpolation between stored nodes (position with
+where every equation has its own coordinate :math:`q_i` (its second derivative is the
+equation's inertia), the terms may read every coordinate, and :math:`q_d^{(r)}` (position,
+:math:`r = 0`, or velocity, :math:`r = 1`) of one coordinate is fed back with the delay
+:math:`\tau`.  A single equation (:class:`System`) is the case :math:`N = 1`; a coupled
+one is a :class:`CoupledSystem`.  Both run through :func:`integrate`.
+
+The method is the classical fixed-step Runge–Kutta method.  The delayed state is read from
+a history buffer by cubic Hermite interpolation between stored nodes (position with
 velocity, or velocity with acceleration), which keeps the method fourth-order accurate for
-any :math:`\tau \ge h`.  Before :math:`t = 0` the feedback sees either nothing
-(``history = "zero"``: the loop is closed at :math:`t=0`, as in the paper's simulator) or
-the initial state held constant (``history = "initial"``).
+any :math:`\tau \ge h`; a delay shorter than the sample step is resolved by sub-steps, and
+one shorter than a step acts on the current state.  Before :math:`t = 0` the feedback sees
+either nothing (``history = "zero"``: the loop is closed at :math:`t=0`, as in the paper's
+simulator) or the initial position held constant (``history = "initial"``).
 
-Parameters may be given for a batch of ``B`` systems at once (arrays of shape ``(B,)`` or
-``(B, k)``); one pass then simulates all of them, which is what a finite-difference
-Jacobian needs.
+Parameters may be given for a batch of ``B`` systems at once; one pass then simulates all
+of them, which is what a finite-difference Jacobian needs.  Terms the compiled kernel knows
+(monomials of the coordinates and their velocities, constants, ``sign(q')`` — smoothed or
+not — and ``q'|q'|``) run compiled; a user's own term runs the same scheme in Python.
 """
 
 from __future__ import annotations
@@ -40,6 +49,8 @@ MAX_SUBSTEPS = 16
 """Most integration steps per sample that a short delay may ask for."""
 DIVERGED = 1e8
 
+Force = Callable[[np.ndarray], np.ndarray] | np.ndarray
+
 
 class SimulationDiverged(CvxidError):
     """The simulated state left every reasonable bound."""
@@ -47,7 +58,7 @@ class SimulationDiverged(CvxidError):
 
 @dataclass(frozen=True)
 class System:
-    """A delayed second-order system with numeric coefficients."""
+    """A delayed second-order system of one coordinate with numeric coefficients."""
 
     terms: tuple[Term, ...]
     coefficients: np.ndarray  # (k,) or (B, k)
@@ -77,106 +88,160 @@ class System:
         return f"{lhs} = {rhs}"
 
 
-def simulate(
-    system: System,
-    time: np.ndarray,
-    force: Callable[[np.ndarray], np.ndarray] | np.ndarray,
-    x0: float | np.ndarray,
-    v0: float | np.ndarray,
-    substeps: int = 1,
-) -> tuple[np.ndarray, np.ndarray]:
+@dataclass(frozen=True)
+class Equation:
+    """One equation of a coupled system with numeric coefficients."""
+
+    coordinate: str
+    mass: float
+    terms: tuple[Term, ...]
+    coefficients: tuple[float, ...]
+    input_gain: float = 1.0
+    delay_gain: float = 0.0
+
+
+@dataclass(frozen=True)
+class CoupledSystem:
+    """Several equations sharing one input and one delayed coordinate."""
+
+    equations: tuple[Equation, ...]
+    delayed: str
+    tau: float
+    history: str = "zero"
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Coefficients ``(T, 1)``, inertias and delay gains ``(C, 1)``: a batch of one for
+        :func:`integrate_coupled`."""
+        return (np.concatenate([eq.coefficients for eq in self.equations])[:, None],
+                np.array([[eq.mass] for eq in self.equations]), np.array([[eq.delay_gain] for eq in self.equations]))
+
+
+# ---------------------------------------------------------------------- entry points
+def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndarray, v0: float | np.ndarray,
+             substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Positions and velocities at the sample ``time`` (uniform, from its first value).
 
-    ``force`` is a function of time or samples on ``time`` (then interpolated by a cubic
-    spline between samples).  Returns arrays of shape ``(n,)``, or ``(n, B)`` for a batch.
+    ``force`` is a function of time (its value ``(S,)`` or, for a batch, ``(S, B)``) or
+    samples on ``time`` (then interpolated by a cubic spline between samples).  Returns
+    arrays of shape ``(n,)``, or ``(n, B)`` for a batch.
     """
-    if np.any(np.asarray(system.mass) <= 0):
+    coefs = np.atleast_2d(np.asarray(system.coefficients, dtype=float))
+    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain), np.size(x0),
+                np.size(v0))
+    row = lambda a: np.broadcast_to(np.asarray(a, float), (batch,))[None, :]  # noqa: E731  (1, B)
+    t = np.asarray(time, dtype=float)
+
+    def forces(fine: np.ndarray, h: float) -> np.ndarray:
+        f = half_steps(force, t, h, fine.size // 2)
+        return f[:, None, None] if f.ndim == 1 else f[:, None, :]
+
+    X, V = integrate(
+        t, forces, [system.coordinate], [tuple(system.terms)], np.broadcast_to(coefs, (batch, coefs.shape[1])).T,
+        row(system.mass), row(system.gain), row(system.tau)[0], row(x0), row(v0), 0, system.derivative,
+        system.history, substeps,
+    )
+    xs, vs = X[:, 0, :], V[:, 0, :]
+    single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.mass))
+    if xs.shape[1] == 1 and np.ndim(system.coefficients) == 1 and single:
+        return xs[:, 0], vs[:, 0]
+    return xs, vs
+
+
+def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force, x0: dict, v0: dict) -> tuple[dict, dict]:
+    """Positions and velocities of every coordinate at the sample ``time``.  ``force`` is
+    the shared input (a function of time or samples on ``time``), scaled by each
+    equation's ``input_gain``."""
+    t = np.asarray(time, float)
+    coords = [eq.coordinate for eq in system.equations]
+    gains = np.array([eq.input_gain for eq in system.equations])
+
+    def forces(fine: np.ndarray, h: float) -> np.ndarray:
+        return (half_steps(force, t, h, fine.size // 2)[:, None] * gains[None, :])[:, :, None]
+
+    coefs, mass, delay_gain = system.arrays()
+    X, V = integrate(t, forces, coords, [eq.terms for eq in system.equations], coefs, mass, delay_gain,
+                     np.array([system.tau]), np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]),
+                     _delayed_index(system), 0, system.history)
+    return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
+
+
+def integrate_coupled(system: CoupledSystem, t: np.ndarray, forces: np.ndarray, coefs: np.ndarray, mass: np.ndarray,
+                      delay_gain: np.ndarray, tau: np.ndarray, x0: np.ndarray,
+                      v0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A batch of ``B`` variants of ``system``'s structure at once: ``forces`` ``(2n-1, C)``
+    at the RK4 nodes and midpoints of ``t`` (one step per sample), ``coefs`` ``(T, B)``
+    (every equation's terms in order), ``mass`` and ``delay_gain`` ``(C, B)``, ``tau``
+    ``(B,)``, initial states ``(C, B)``.  Returns positions and velocities ``(n, C, B)``."""
+    h = float(t[1] - t[0])
+    if np.any(np.asarray(tau) < h):
+        raise CvxidError(f"the delay {np.min(tau):g} s is shorter than the step {h:g} s")
+    coords = [eq.coordinate for eq in system.equations]
+    return integrate(t, lambda fine, step: np.asarray(forces, float)[:, :, None], coords,
+                     [eq.terms for eq in system.equations], coefs, mass, delay_gain, np.asarray(tau, float), x0, v0,
+                     _delayed_index(system), 0, system.history)
+
+
+def _delayed_index(system: CoupledSystem) -> int:
+    coords = [eq.coordinate for eq in system.equations]
+    if system.delayed not in coords:
+        raise CvxidError(f"the delayed coordinate {system.delayed!r} is not one of {coords}")
+    return coords.index(system.delayed)
+
+
+# ---------------------------------------------------------------------- the integrator
+def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], coordinates: list[str],
+              terms: list[tuple[Term, ...]], coefs: np.ndarray, mass: np.ndarray, gain: np.ndarray, tau: np.ndarray,
+              x0: np.ndarray, v0: np.ndarray, delayed: int, derivative: int = 0, history: str = "zero",
+              substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The one integrator.  ``C`` coordinates, ``B`` variants: ``terms[i]`` are equation
+    ``i``'s terms, ``coefs`` ``(T, B)`` all equations' coefficients in order, ``mass`` and
+    ``gain`` (of the delayed feedback) ``(C, B)``, ``tau`` ``(B,)``, initial states
+    ``(C, B)``; ``forces(fine, h)`` gives each equation's input at the RK4 nodes and
+    midpoints ``fine`` of step ``h``, broadcastable to ``(S, C, B)``; ``delayed`` is the
+    index of the fed-back coordinate, ``derivative`` 0 (position) or 1 (velocity).
+    Returns positions and velocities ``(n, C, B)`` at the samples ``t``."""
+    if history not in HISTORIES:
+        raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{history}'")
+    mass, gain = np.asarray(mass, float), np.asarray(gain, float)
+    if np.any(mass <= 0):
         raise SimulationDiverged(
-            f"the model's mass is {system.mass} (not positive): it cannot be simulated; "
+            f"the model's inertia is {np.min(mass):g} (not positive): it cannot be simulated; "
             "constrain the inertia to be positive or use richer data"
         )
-    t = np.asarray(time, dtype=float)
     n = t.size
     dt = float((t[-1] - t[0]) / (n - 1))
-    coefs = np.atleast_2d(np.asarray(system.coefficients, dtype=float))
-    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain), np.size(x0), np.size(v0))
-    coefs = np.broadcast_to(coefs, (batch, coefs.shape[1])).T.copy()  # (k, B)
-    mass = np.broadcast_to(np.asarray(system.mass, float), (batch,))
-    tau = np.broadcast_to(np.asarray(system.tau, float), (batch,))
-    gain = np.broadcast_to(np.asarray(system.gain, float), (batch,))
-    delayed = bool(np.any(gain != 0) and np.any(tau > 0))
+    C, B = mass.shape
+    tau = np.broadcast_to(np.asarray(tau, float), (B,))
     substeps = int(substeps)
     resolvable = tau[tau >= dt / MAX_SUBSTEPS]
-    if delayed and resolvable.size:
+    if np.any(gain != 0) and resolvable.size:
         substeps = max(substeps, int(np.ceil(dt / resolvable.min() - 1e-12)))
     h = dt / substeps
-    instant = tau < h  # delays shorter than a step act on the current state (error O(tau))
     steps = (n - 1) * substeps
-    f = half_steps(force, t, h, steps)
-    f = np.broadcast_to(f[:, None] if f.ndim == 1 else f, (2 * steps + 1, batch))
-
-    X = np.zeros((steps + 1, batch))
-    V = np.zeros((steps + 1, batch))
-    A = np.zeros((steps + 1, batch))
-    X[0], V[0] = x0, v0
-    cols = np.arange(batch)
-    pos, vel = system.coordinate, velocity_symbol(system.coordinate)
-    q = system.derivative
-    y_hist = X if q == 0 else V
-    d_hist = V if q == 0 else A
-
+    fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
+    F = np.ascontiguousarray(np.broadcast_to(forces(fine, h), (fine.size, C, B)))
+    instant = tau < h  # delays shorter than a step act on the current state (error O(tau))
     offs, ws = hermite_stages(tau, h)
-    fill = X[0] if (system.history == "initial" and q == 0) else np.zeros(batch)
-    codes = _term_codes(system)
+    x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, float), (C, B)))
+    v0 = np.ascontiguousarray(np.broadcast_to(np.asarray(v0, float), (C, B)))
+    fill = x0[delayed].copy() if (history == "initial" and derivative == 0) else np.zeros(B)
+    coefs = np.ascontiguousarray(coefs, float)
+    codes = _term_codes(coordinates, terms)
+    args = (F, np.ascontiguousarray(mass), coefs, np.ascontiguousarray(gain), delayed, derivative, offs, ws, instant,
+            fill, x0, v0, h, steps)
     if codes is not None:
-        xs, vs, failed = _rk4_kernel(
-            np.ascontiguousarray(f), mass.copy(), coefs, *codes, gain.copy(), q, offs, ws,
-            instant.copy(), fill.copy(), delayed, X[0].copy(), V[0].copy(), h, steps, substeps,
+        X, V, failed = _kernel(*codes, *args)
+    else:
+        X, V, failed = _python_kernel(coordinates, terms, *args)
+    if failed >= 0:
+        raise SimulationDiverged(
+            f"the simulation diverged at t = {t[0] + failed * h:.4g} s (|x| or |x'| > {DIVERGED:g}): the model "
+            "is unstable under this input; check its coefficients"
         )
-        if failed >= 0:
-            _diverged(t[0] + failed * h)
-        return _shape(system, xs, vs)
-
-    def lagged(k, ci):
-        """x^(q)(t_k + c h - tau), c = (0, 1/2, 1)[ci], from the buffer (or the history
-        before t = 0)."""
-        w0, w1, w2, w3 = ws[ci]
-        i = k + offs[ci]
-        # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
-        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2))
-        j = np.clip(i, 0, steps - 1)  # (delays shorter than a step never use the value)
-        out = w0 * y_hist[j, cols] + w1 * d_hist[j, cols] + w2 * y_hist[j + 1, cols] + w3 * d_hist[j + 1, cols]
-        return np.where(early, fill, out)
-
-    def accel(step2, x, v, k, ci):
-        rhs = f[step2].copy()
-        if delayed:
-            rhs += gain * np.where(instant, x if q == 0 else v, lagged(k, ci))
-        states = {pos: x, vel: v}
-        for term, coef in zip(system.terms, coefs):
-            rhs -= coef * term.evaluate(states)
-        return rhs / mass
-
-    x, v = X[0].copy(), V[0].copy()
-    for k in range(steps):
-        a1 = accel(2 * k, x, v, k, 0)
-        A[k] = a1
-        x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-        a2 = accel(2 * k + 1, x2, v2, k, 1)
-        x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-        a3 = accel(2 * k + 1, x3, v3, k, 1)
-        x4, v4 = x + h * v3, v + h * a3
-        a4 = accel(2 * k + 2, x4, v4, k, 2)
-        x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
-        v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-        X[k + 1], V[k + 1] = x, v
-        if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
-            _diverged(t[0] + (k + 1) * h)
-    return _shape(system, X[::substeps], V[::substeps])
+    return X[::substeps], V[::substeps]
 
 
-def half_steps(force: Callable[[np.ndarray], np.ndarray] | np.ndarray, t: np.ndarray, h: float,
-               steps: int) -> np.ndarray:
+def half_steps(force: Force, t: np.ndarray, h: float, steps: int) -> np.ndarray:
     """The force at every RK4 node and midpoint :math:`t_0 + j h/2`: called when it is a
     function of time, else a cubic spline through its samples on ``t``."""
     fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
@@ -205,99 +270,164 @@ def hermite_stages(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     return np.array(offs), np.array(ws)
 
 
-def _diverged(when: float):
-    raise SimulationDiverged(
-        f"the simulation diverged at t = {when:.4g} s (|x| or |x'| > {DIVERGED:g}): the model "
-        "is unstable under this input; check its coefficients"
-    )
+# ---------------------------------------------------------------------- term codes
+KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH = 0, 1, 2, 3
 
 
-def _shape(system: System, xs: np.ndarray, vs: np.ndarray):
-    single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.mass))
-    if xs.shape[1] == 1 and np.ndim(system.coefficients) == 1 and single:
-        return xs[:, 0], vs[:, 0]
-    return xs, vs
-
-
-def _term_codes(system: System):
-    """(kinds, powers of x, powers of x') of terms the compiled kernel knows, else None."""
-    pos, vel = system.coordinate, velocity_symbol(system.coordinate)
-    kinds, px, pv = [], [], []
-    for term in system.terms:
-        if isinstance(term, Monomial) and set(term.factors) <= {pos, vel}:
-            kinds.append(0)
-            px.append(term.factors.get(pos, 0))
-            pv.append(term.factors.get(vel, 0))
-        elif isinstance(term, Constant):
-            kinds.append(0)
-            px.append(0)
-            pv.append(0)
-        elif isinstance(term, (Sign, AbsProduct)) and term.coordinate == pos and not getattr(term, "smoothing", 0):
-            kinds.append(1 if isinstance(term, Sign) else 2)
-            px.append(0)
-            pv.append(0)
-        else:
-            return None  # a user's own term: the Python integrator runs it
-    return np.array(kinds, np.int64), np.array(px, np.int64), np.array(pv, np.int64)
-
-
-@njit(cache=True)
-def _accel_kernel(b, x, v, fk, k, ci, mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill,
-                  delayed, X, V, A, steps):
-    rhs = fk
-    if delayed and gain[b] != 0.0:
-        if instant[b]:
-            d = x if q == 0 else v
-        else:
-            i = k + offs[ci, b]
-            w0, w1, w2, w3 = ws[ci, 0, b], ws[ci, 1, b], ws[ci, 2, b], ws[ci, 3, b]
-            if i < 0 or (i == 0 and w0 == 1.0 and ci == 2):
-                d = fill[b]
+def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
+    """Every term of every equation as (equation, kind, powers of positions ``(T, C)``,
+    powers of velocities, coordinate read, smoothing) for the compiled kernel; None when a
+    term is a user's own (the Python kernel runs it)."""
+    symbols = {c: j for j, c in enumerate(coordinates)}
+    C = len(coordinates)
+    rows = []
+    for e, eq_terms in enumerate(terms):
+        for term in eq_terms:
+            px, pv = np.zeros(C, np.int64), np.zeros(C, np.int64)
+            if isinstance(term, Monomial) and all(s.rstrip("'") in symbols for s in term.factors) and all(
+                    len(s) - len(s.rstrip("'")) <= 1 for s in term.factors):
+                for s, p in term.factors.items():
+                    (pv if s.endswith("'") else px)[symbols[s.rstrip("'")]] = p
+                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0))
+            elif isinstance(term, Constant):
+                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0))
+            elif isinstance(term, Sign) and term.coordinate in symbols:
+                rows.append((e, KIND_TANH if term.smoothing else KIND_SIGN, px, pv, symbols[term.coordinate],
+                             term.smoothing))
+            elif isinstance(term, AbsProduct) and term.coordinate in symbols:
+                rows.append((e, KIND_ABS, px, pv, symbols[term.coordinate], 0.0))
             else:
-                j = min(i, steps - 1)
-                if q == 0:
-                    d = w0 * X[j, b] + w1 * V[j, b] + w2 * X[j + 1, b] + w3 * V[j + 1, b]
-                else:
-                    d = w0 * V[j, b] + w1 * A[j, b] + w2 * V[j + 1, b] + w3 * A[j + 1, b]
-        rhs += gain[b] * d
-    for m in range(kinds.size):
-        if kinds[m] == 0:
-            val = x ** px[m] * v ** pv[m]
-        elif kinds[m] == 1:
-            val = 1.0 if v > 0 else (-1.0 if v < 0 else 0.0)
-        else:
-            val = v * abs(v)
-        rhs -= coefs[m, b] * val
-    return rhs / mass[b]
+                return None
+    if not rows:
+        return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, C), np.int64), np.zeros((0, C), np.int64),
+                np.zeros(0, np.int64), np.zeros(0))
+    eqs, kinds, px, pv, tc, scale = zip(*rows)
+    return (np.array(eqs, np.int64), np.array(kinds, np.int64), np.array(px), np.array(pv), np.array(tc, np.int64),
+            np.array(scale, float))
+
+
+# ---------------------------------------------------------------------- kernels
+@njit(cache=True)
+def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, X, V, A, steps):
+    """:math:`q_d^{(r)}(t_k + c h - \\tau)` from the history buffer (or before t = 0)."""
+    if instant[b]:
+        return x[d] if q == 0 else v[d]
+    i = k + offs[ci, b]
+    w0 = ws[ci, 0, b]
+    # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
+    if i < 0 or (i == 0 and w0 == 1.0 and ci == 2):
+        return fill[b]
+    j = min(i, steps - 1)
+    if q == 0:
+        return w0 * X[j, d, b] + ws[ci, 1, b] * V[j, d, b] + ws[ci, 2, b] * X[j + 1, d, b] + ws[ci, 3, b] * V[j + 1, d, b]
+    return w0 * V[j, d, b] + ws[ci, 1, b] * A[j, d, b] + ws[ci, 2, b] * V[j + 1, d, b] + ws[ci, 3, b] * A[j + 1, d, b]
 
 
 @njit(cache=True)
-def _rk4_kernel(f, mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill, delayed, x0, v0, h,
-                steps, stride):
-    """The same RK4 with history buffer as the Python loop, compiled (one system at a time)."""
-    batch = x0.size
-    X = np.zeros((steps + 1, batch))
-    V = np.zeros((steps + 1, batch))
-    A = np.zeros((steps + 1, batch))
+def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill,
+           X, V, A, steps, out):
+    C = x.size
+    qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, X, V, A, steps)
+    for e in range(C):
+        out[e] = F[s, e, b] + gain[e, b] * qd
+    for m in range(eqs.size):
+        kind = kinds[m]
+        if kind == 0:
+            val = 1.0
+            for c in range(C):
+                val *= x[c] ** px[m, c] * v[c] ** pv[m, c]
+        elif kind == 1:
+            w = v[tc[m]]
+            val = 1.0 if w > 0 else (-1.0 if w < 0 else 0.0)
+        elif kind == 2:
+            val = v[tc[m]] * abs(v[tc[m]])
+        else:
+            val = np.tanh(v[tc[m]] / scale[m])
+        out[eqs[m]] -= coefs[m, b] * val
+    for e in range(C):
+        out[e] /= mass[e, b]
+
+
+@njit(cache=True)
+def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill, x0, v0, h, steps):
+    """RK4 with a Hermite history of the delayed coordinate, one variant of the batch at a
+    time (compiled)."""
+    C, B = x0.shape
+    X = np.zeros((steps + 1, C, B))
+    V = np.zeros((steps + 1, C, B))
+    A = np.zeros((steps + 1, C, B))
+    a1, a2, a3, a4 = np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
     failed = -1
-    args = (mass, coefs, kinds, px, pv, gain, q, offs, ws, instant, fill, delayed)
-    for b in range(batch):
-        x, v = x0[b], v0[b]
-        X[0, b], V[0, b] = x, v
+    for b in range(B):
+        x, v = x0[:, b].copy(), v0[:, b].copy()
+        X[0, :, b], V[0, :, b] = x, v
         for k in range(steps):
-            a1 = _accel_kernel(b, x, v, f[2 * k, b], k, 0, *args, X, V, A, steps)
-            A[k, b] = a1
+            _accel(b, 2 * k, x, v, k, 0, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant,
+                   fill, X, V, A, steps, a1)
+            A[k, :, b] = a1
             x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-            a2 = _accel_kernel(b, x2, v2, f[2 * k + 1, b], k, 1, *args, X, V, A, steps)
+            _accel(b, 2 * k + 1, x2, v2, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
+                   instant, fill, X, V, A, steps, a2)
             x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-            a3 = _accel_kernel(b, x3, v3, f[2 * k + 1, b], k, 1, *args, X, V, A, steps)
+            _accel(b, 2 * k + 1, x3, v3, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
+                   instant, fill, X, V, A, steps, a3)
             x4, v4 = x + h * v3, v + h * a3
-            a4 = _accel_kernel(b, x4, v4, f[2 * k + 2, b], k, 2, *args, X, V, A, steps)
+            _accel(b, 2 * k + 2, x4, v4, k, 2, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
+                   instant, fill, X, V, A, steps, a4)
             x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
             v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-            X[k + 1, b], V[k + 1, b] = x, v
-            if not (abs(x) < 1e8 and abs(v) < 1e8):
+            X[k + 1, :, b], V[k + 1, :, b] = x, v
+            if not (np.abs(x).max() < 1e8 and np.abs(v).max() < 1e8):
                 if failed < 0 or k + 1 < failed:
                     failed = k + 1
                 break
-    return X[::stride].copy(), V[::stride].copy(), failed
+    return X, V, failed
+
+
+def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, x0, v0, h, steps):
+    """The same scheme in Python, vectorised over the batch, for terms the compiled kernel
+    does not know (a user's own :class:`~cvxid.model.terms.Term`)."""
+    C, B = x0.shape
+    X = np.zeros((steps + 1, C, B))
+    V = np.zeros((steps + 1, C, B))
+    A = np.zeros((steps + 1, C, B))
+    cols = np.arange(B)
+    rows = np.cumsum([0] + [len(t) for t in terms])
+    y_hist, d_hist = (X, V) if q == 0 else (V, A)
+
+    def delayed(x, v, k, ci):
+        w0, w1, w2, w3 = ws[ci]
+        i = k + offs[ci]
+        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2))
+        j = np.clip(i, 0, steps - 1)
+        out = (w0 * y_hist[j, d, cols] + w1 * d_hist[j, d, cols] + w2 * y_hist[j + 1, d, cols]
+               + w3 * d_hist[j + 1, d, cols])
+        return np.where(instant, x[d] if q == 0 else v[d], np.where(early, fill, out))
+
+    def accel(s, x, v, k, ci):
+        qd = delayed(x, v, k, ci)
+        states = {c: x[j] for j, c in enumerate(coordinates)}
+        states.update({velocity_symbol(c): v[j] for j, c in enumerate(coordinates)})
+        out = F[s] + gain * qd[None, :]
+        for e, eq_terms in enumerate(terms):
+            for m, term in enumerate(eq_terms):
+                out[e] -= coefs[rows[e] + m] * term.evaluate(states)
+        return out / mass
+
+    x, v = x0.copy(), v0.copy()
+    X[0], V[0] = x, v
+    for k in range(steps):
+        a1 = accel(2 * k, x, v, k, 0)
+        A[k] = a1
+        x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
+        a2 = accel(2 * k + 1, x2, v2, k, 1)
+        x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
+        a3 = accel(2 * k + 1, x3, v3, k, 1)
+        x4, v4 = x + h * v3, v + h * a3
+        a4 = accel(2 * k + 2, x4, v4, k, 2)
+        x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
+        v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        X[k + 1], V[k + 1] = x, v
+        if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
+            return X, V, k + 1
+    return X, V, -1

@@ -15,7 +15,7 @@ LAYERS = [
     {"errors", "progress", "metrics", "plots"},
     {"data"},
     {"model"},
-    {"simulate", "coupled"},
+    {"simulate"},
     {"regression"},
     {"identified", "export"},
     {"identify"},

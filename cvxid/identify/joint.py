@@ -29,7 +29,6 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import least_squares, minimize_scalar
 
-from cvxid.coupled import CoupledSystem, Equation, integrate_coupled
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel
@@ -39,7 +38,13 @@ from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import parse_term
 from cvxid.regression.regression import DelayFamily, Regression
-from cvxid.simulate import SimulationDiverged, half_steps
+from cvxid.simulate import (
+    CoupledSystem,
+    Equation,
+    SimulationDiverged,
+    half_steps,
+    integrate_coupled,
+)
 
 Tie = tuple[str, str, float]
 JOINT_SCHEMA = "cvxid.identify.joint/1"

@@ -13,14 +13,13 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Mapping
 
-from cvxid.coupled import CoupledSystem, Equation, simulate_coupled
 from cvxid.data.experiment import Experiment, load
 from cvxid.errors import CvxidError
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import resolve_term
 from cvxid.model.terms import Sign
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.simulate import HISTORIES
+from cvxid.simulate import HISTORIES, CoupledSystem, Equation, simulate_coupled
 from cvxid.spec.problem import (
     SIM_KEYS,
     DiagnoseSettings,

@@ -14,13 +14,13 @@ from typing import Sequence
 
 import numpy as np
 
-from cvxid.coupled import CoupledSystem, Equation, simulate_coupled
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
 from cvxid.model.terms import Sign, parse_term
+from cvxid.simulate import CoupledSystem, Equation, simulate_coupled
 
 QUANSER = {
     # Table 3 of the paper (J_eq as its Table 5 implies: 0.0102 - 0.008121)
