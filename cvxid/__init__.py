@@ -19,13 +19,14 @@ from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, Library, register_effect
+from cvxid.regression.builder import RegressionBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
 
 __version__ = "0.1.0"
 __all__ = [
     "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "Library", "ModelSpec", "Path",
-    "Problem", "Regression", "RunResult", "SolverFailure", "compare", "diagnose", "from_frame", "load",
+    "Problem", "Regression", "RegressionBuilder", "build_regression", "RunResult", "SolverFailure", "compare", "diagnose", "from_frame", "load",
     "load_problem", "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run",
     "with_effect",
 ]

@@ -24,7 +24,7 @@ import numpy as np
 import cvxid
 from cvxid.model.library import Library
 from cvxid.model.terms import parse_term
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 
 HERE = Path(__file__).resolve().parent
 spec = cvxid.load_problem(HERE.parent / "problems" / "hidden_friction.toml")
@@ -35,7 +35,7 @@ data = cvxid.Experiment(full.time[keep], {"x": full.output("x")[keep] + 0.003 * 
                         {"f": full.input("f")[keep]}, "3 s")
 damping = ["x'", "sign(x')", "x'|x'|", "x'^3"]
 model = replace(spec.model, library=Library([parse_term(n) for n in ["x", *damping]]))
-regression = DelayFamily(model, data, "savgol").at(0.15)  # the delay as known, to isolate the point
+regression = RegressionBuilder(model, data, "savgol").at(0.15)  # the delay as known, to isolate the point
 
 # %%
 free = cvxid.Problem.from_regression(regression, nonnegative=["x''"])

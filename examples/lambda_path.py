@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 
 import cvxid
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 
 HERE = Path(__file__).resolve().parent
 OUT = Path(os.environ.get("OUT", "out/lambda_path"))
 OUT.mkdir(parents=True, exist_ok=True)
 spec = cvxid.load_problem(HERE.parent / "problems" / "duffing_delay.toml")
-train = DelayFamily(spec.model, spec.experiment("train"), "measured").at(None)
-test = DelayFamily(spec.model, spec.experiment("test"), "measured").at(None)
+train = RegressionBuilder(spec.model, spec.experiment("train"), "measured").at(None)
+test = RegressionBuilder(spec.model, spec.experiment("test"), "measured").at(None)
 problem = cvxid.Problem.from_regression(train, spec.model.nonnegative)
 print(problem)
 

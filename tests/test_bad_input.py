@@ -10,7 +10,8 @@ from cvxid import CvxidError, CvxidWarning, Experiment, Problem, SolverFailure
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
 from cvxid.model.terms import parse_term
-from cvxid.regression.regression import DelayFamily, Regression
+from cvxid.regression.builder import RegressionBuilder
+from cvxid.regression.regression import Regression
 
 from .conftest import cli_error
 
@@ -28,7 +29,7 @@ MODEL = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
 def test_constant_input_is_refused():
     e = Experiment(T, {"x": np.sin(T)}, {"f": np.full(T.size, 2.0)})
     with pytest.raises(CvxidError, match="input 'f' is constant"):
-        DelayFamily(MODEL, e, "savgol")
+        RegressionBuilder(MODEL, e, "savgol")
 
 
 def test_rank_deficient_library_is_named():

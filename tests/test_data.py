@@ -91,7 +91,7 @@ def test_gaps_split_into_segments_and_restart_the_integrals():
     from cvxid.model.equation import ModelSpec
     from cvxid.model.library import Library
     from cvxid.model.terms import parse_term
-    from cvxid.regression.regression import DelayFamily
+    from cvxid.regression.builder import RegressionBuilder
 
     t = np.arange(400) * 0.01
     x, f = np.sin(1.3 * t), np.cos(0.7 * t)
@@ -103,7 +103,7 @@ def test_gaps_split_into_segments_and_restart_the_integrals():
     parts = e.segments()
     assert [p.n for p in parts] == [150, 240]
     model = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
-    with_gap = DelayFamily(model, e, "savgol").at(None)
-    stacked = DelayFamily(model, parts, "savgol").at(None)
+    with_gap = RegressionBuilder(model, e, "savgol").at(None)
+    stacked = RegressionBuilder(model, parts, "savgol").at(None)
     np.testing.assert_array_equal(with_gap.P, stacked.P)
     assert with_gap.shape[0] == 390  # the 10 missing samples are not interpolated

@@ -15,7 +15,7 @@ from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
 from cvxid.model.terms import parse_term
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 from cvxid.simulate import System, simulate
 
 TERMS = ("x'", "x", "x^3")
@@ -67,7 +67,7 @@ def test_taylor_tau_ignores_the_gain_only_column():
 def test_exact_delay_profile_recovers_tau_without_noise(history):
     exp = record(0, 0.0, history=history)
     spec = replace(model(), delay=replace(model().delay, history=history))
-    fam = DelayFamily(spec, exp, "measured")
+    fam = RegressionBuilder(spec, exp, "measured")
     prof = profile_delay(fam, nonnegative=spec.nonnegative)
     assert prof.estimate == pytest.approx(TRUE["tau"], abs=2e-4)
     assert prof.interval[0] <= prof.estimate <= prof.interval[1]
@@ -81,7 +81,7 @@ def test_unknown_gain_is_estimated_with_the_delay():
     exp = record(1, 0.0)
     spec = model(gain=None)
     assert "x(t-tau)" in spec.column_names
-    fam = DelayFamily(spec, exp, "measured")
+    fam = RegressionBuilder(spec, exp, "measured")
     prof = profile_delay(fam, nonnegative=spec.nonnegative)
     reg = fam.at(prof.estimate)
     fit = Problem.from_regression(reg).refit(np.ones(reg.shape[1], bool))
@@ -92,7 +92,7 @@ def test_unknown_gain_is_estimated_with_the_delay():
 
 def test_record_shorter_than_the_delay_is_refused():
     with pytest.raises(CvxidError, match="too short for delays up to tau_max"):
-        DelayFamily(model(), record(0, 0.0, duration=0.5), "measured")
+        RegressionBuilder(model(), record(0, 0.0, duration=0.5), "measured")
 
 
 def test_effective_rows_of_white_and_coloured_noise(rng):

@@ -122,8 +122,8 @@ def test_a_wrong_delay_is_named_and_estimated_again():
     assumed = refit(linear_model(), train, ["x''", "x", "x'"], None)
     # the same terms with an assumed delay of 0.3 s (truth 0.15 s): least squares at that delay
     from cvxid.identify.problem import Problem
-    from cvxid.regression.regression import DelayFamily
-    family = DelayFamily(linear_model(), train, "savgol")
+    from cvxid.regression.builder import RegressionBuilder
+    family = RegressionBuilder(linear_model(), train, "savgol")
     fit = Problem.from_regression(family.at(0.3), ("x''",)).refit(np.ones(3, bool))
     assumed = type(right)(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)
     dx = diagnose(assumed, train, test)

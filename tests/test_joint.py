@@ -49,7 +49,7 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
 def test_corrupted_joint_model_files_are_refused(tmp_path):
     path = tmp_path / "model.json"
     for text, message in [("{", "cannot read"), ('{"schema": "cvxid.identified/1"}', "not a cvxid joint model"),
-                          ('{"schema": "cvxid.identify.joint/1", "tau": 0.2}', "incomplete or corrupted")]:
+                          ('{"schema": "cvxid.joint/1", "tau": 0.2}', "incomplete or corrupted")]:
         path.write_text(text)
         with pytest.raises(CvxidError, match=message):
             JointResult.load(path)
@@ -115,3 +115,40 @@ def test_joint_selection_drops_terms_the_rig_does_not_have():
         assert not {f"{label}:theta^3", f"{label}:alpha^3"} & support
     assert result.result.tau == pytest.approx(0.2, rel=0.01)
     assert result.to_dict()["lambda"] > 0
+
+
+def _without_friction(**fit):
+    """The flexible-joint spec with its truth's friction removed (so the starting library
+    is the true structure), 30 s of training, equation error only."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 30.0
+    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    for equation in raw["truth"]["equation"]:
+        equation["coefficients"].pop("sign(theta')")
+    raw.pop("diagnose")
+    raw["fit"] = {"velocity": "savgol", "window": 1.0, **fit}
+    return parse_problem(raw, SPEC.parent)
+
+
+def test_coupled_spec_bootstraps_with_its_ties():
+    plain = run(_without_friction())
+    boot = run(_without_friction(bootstrap={"samples": 6, "seed": 3}))
+    data = boot.to_dict()
+    assert data["bootstrap"]["samples"] == 6
+    terms = data["bootstrap"]["terms"]
+    # every sample keeps the tie, so the mean does; the spread is a real spread
+    assert terms["alpha:theta'"]["mean"] == pytest.approx(-terms["theta:theta'"]["mean"], rel=1e-9)
+    assert terms["theta:alpha"]["std"] > 0
+    # the ensemble mean is the estimate (k_s = -theta:alpha), near the fit on all rows and the truth
+    assert boot.physical["k_s"] == pytest.approx(-terms["theta:alpha"]["mean"], rel=1e-12)
+    assert boot.physical["k_s"] == pytest.approx(plain.physical["k_s"], rel=0.03)
+    assert boot.physical["k_s"] == pytest.approx(1.3, rel=0.1)
+
+
+def test_coupled_spec_accepts_the_huber_loss():
+    robust = run(_without_friction(loss="huber"))
+    assert robust.to_dict()["loss"] == "huber"
+    coefs = robust.result.coefficients
+    assert coefs["alpha:theta'"] == pytest.approx(-coefs["theta:theta'"], rel=1e-9)  # the tie holds
+    assert robust.physical["k_s"] == pytest.approx(1.3, rel=0.1)
+    assert robust.physical["B"] == pytest.approx(0.08403, rel=0.02)

@@ -8,7 +8,7 @@ from cvxid.identify.problem import Problem
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
 from cvxid.model.terms import parse_term
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 from cvxid.simulate import System, simulate
 
 
@@ -27,7 +27,7 @@ def test_huber_fit_resists_spikes_where_least_squares_does_not(rng):
     spikes = rng.choice(x.size, 20, replace=False)
     x[spikes] += rng.choice([-1, 1], 20) * 0.5
     spec = ModelSpec(Library([parse_term("x'"), parse_term("x")]), nonnegative=("x''",))
-    reg = DelayFamily(spec, Experiment(t, {"x": x}, {"f": force(t)}), "savgol", window=0.25).at(None)
+    reg = RegressionBuilder(spec, Experiment(t, {"x": x}, {"f": force(t)}), "savgol", window=0.25).at(None)
     truth = np.array([1.0, 0.4, 6.0])
     ls = Problem.from_regression(reg).refit(np.ones(3, bool)).coefficients
     huber, _ = huber_refit(reg, np.ones(3, bool))

@@ -20,19 +20,24 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from cvxid.app.report import plain, prepare_folder, records
 from cvxid.data.experiment import Experiment
 from cvxid.diagnose.joint import JointRefinement, refine_joint
 from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.identify.bootstrap import Bootstrap, bootstrap
 from cvxid.identify.joint import (
     JointPolish,
     JointRegression,
     JointResult,
     identify_joint,
+    joint_models,
     joint_test_mse,
     polish_joint,
 )
+from cvxid.identify.loss import huber_refit
 from cvxid.identify.path import Path as LambdaPath
 from cvxid.model.library import Library
+from cvxid.regression.builder import SystemBuilder
 from cvxid.spec.coupled import JointProblemSpec, joint_physical
 
 RESULT_SCHEMA = 1
@@ -52,6 +57,7 @@ class JointRunResult:
     path: LambdaPath | None = None
     refinement: JointRefinement | None = None
     polish: JointPolish | None = None
+    bootstrap: Bootstrap | None = None
 
     @property
     def physical(self) -> dict[str, float]:
@@ -86,7 +92,7 @@ class JointRunResult:
 
     def to_dict(self) -> dict:
         cmp = self.comparison()
-        tau = {"estimate": self.result.tau, "interval": None, "method": "joint profile"}
+        tau = {"estimate": self.result.tau, "interval": self.result.info.get("tau_interval"), "method": "joint profile"}
         if self.polish is not None:
             se = self.polish.standard_errors["tau"]
             tau = {"estimate": self.result.tau, "interval": [self.result.tau - 1.96 * se, self.result.tau + 1.96 * se],
@@ -116,6 +122,11 @@ class JointRunResult:
                 "ranking": self.refinement.rankings[0].reset_index().to_dict(orient="records"),
             },
             "refinement": None if self.refinement is None else self.refinement.steps,
+            "bootstrap": None if self.bootstrap is None else {
+                "samples": len(self.bootstrap.coefficients),
+                "terms": records(self.bootstrap.summary()),
+            },
+            "loss": self.spec.fit.loss,
             "polish": None if self.polish is None else {
                 "method": "output_error", "rms_before": self.polish.rms_before, "rms_after": self.polish.rms_after,
                 "standard_errors": self.polish.standard_errors, "seconds": self.polish.seconds,
@@ -151,8 +162,6 @@ class JointRunResult:
         """``result.json``, ``report.md``, ``model.json`` (the joint model, for
         :meth:`~cvxid.identify.joint.JointResult.load`) and figures (``test_fit``, ``delay_profile``,
         ``refinement``) in ``out``."""
-        from cvxid.app.report import plain, prepare_folder
-
         out = prepare_folder(out)
         data = self.to_dict()
         figures = {"delay_profile": self._profile_figure}
@@ -215,35 +224,39 @@ def _identify(spec: JointProblemSpec) -> JointRunResult:
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
     velocity, window = fit.velocity, fit.window
-    joint = JointRegression(spec.equations, train, velocity, window, spec.ties)
+    rows = SystemBuilder(spec.equations, train, velocity, window)
+    test_rows = SystemBuilder(spec.equations, test, velocity, window) if test is not None else None
+    joint = JointRegression(spec.equations, rows, ties=spec.ties)
     result = joint.identify()
-    path = None
+    path = ensemble = None
     if fit.estimator != "lstsq":
-        result, path = _select(spec, joint, result, train, test)
+        result, path = _select(spec, joint, result, test_rows)
+    if fit.bootstrap or fit.loss == "huber":
+        result, ensemble = _resample_or_robust(spec, joint, result, test_rows)
     refinement = None
     if spec.diagnose is not None:
         if test is None:
             raise CvxidError("[diagnose] scores effects on the test data: add [data.test]")
         d = spec.diagnose
         refinement = refine_joint(result, train, test, d.candidates, d.min_improvement,
-                                  d.max_steps if d.refine else 0, velocity, window)
+                                  d.max_steps if d.refine else 0, velocity, window, (rows, test_rows))
         result = refinement.result
     polished = None
     if fit.refine == "output_error":
         polished = polish_joint(result, train)
         result = polished.result
-    test_mse = joint_test_mse(result, test, velocity, window) if test is not None else float("nan")
-    return JointRunResult(spec, result, train, test, test_mse, path=path, refinement=refinement, polish=polished)
+    test_mse = joint_test_mse(result, test_rows) if test is not None else float("nan")
+    return JointRunResult(spec, result, train, test, test_mse, path=path, refinement=refinement, polish=polished,
+                          bootstrap=ensemble)
 
 
-def _select(spec: JointProblemSpec, joint: JointRegression, result: JointResult, train: Experiment,
-            test: Experiment | None):
+def _select(spec: JointProblemSpec, joint: JointRegression, result: JointResult, test_rows: SystemBuilder | None):
     """The λ path of the joint problem at the profiled delay, scored by the joint test
     equation error; the chosen support is identified again (delay profiled anew)."""
     fit = spec.fit
-    if test is None:
+    if test_rows is None:
         raise CvxidError(f"estimator = '{fit.estimator}' selects terms by the test error: add [data.test]")
-    validation = JointRegression(spec.equations, test, fit.velocity, fit.window).at(result.tau)
+    validation = JointRegression(spec.equations, test_rows).at(result.tau)
     path = LambdaPath.compute(joint.problem(result.tau), fit.lambdas, validation.residual, fit.estimator, fit.debias)
     best = path.best(fit.selection)
     chosen = {n for n, keep in zip(path.names, best.support) if keep}
@@ -253,5 +266,30 @@ def _select(spec: JointProblemSpec, joint: JointRegression, result: JointResult,
         specs[label] = s.with_library(Library(terms))
     names = {f"{label}:{n}" for label, s in specs.items() for n in s.column_names}
     ties = tuple(t for t in spec.ties if t[0] in names and t[1] in names)
-    selected = identify_joint(specs, train, ties, fit.velocity, window=fit.window)
+    selected = identify_joint(specs, joint.rows, ties)
     return replace(selected, info=dict(selected.info, **{"lambda": best.lam})), path
+
+
+def _resample_or_robust(spec: JointProblemSpec, joint: JointRegression, result: JointResult,
+                        test_rows: SystemBuilder | None):
+    """``[fit] bootstrap``: the ensemble of the joint problem at the identified delay
+    (resampled rows, the estimator's path on each, ties and signs kept); its mean is the
+    estimate (the paper's eq. 18).  ``loss = "huber"``: the robust refit of the support."""
+    fit = spec.fit
+    tied = JointRegression(result.specs, joint.rows, ties=result.ties)
+    regression = tied.at(result.tau)
+    coefficients = result.coefficients
+    keep = np.array([coefficients.get(n, 0.0) != 0.0 for n in regression.names])
+    ensemble = None
+    if fit.bootstrap:
+        validation = JointRegression(result.specs, test_rows).at(result.tau) if test_rows is not None else None
+        ensemble = bootstrap(regression, fit.lambdas, validation.residual if validation is not None else None,
+                             fit.bootstrap, tied.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection,
+                             ties=result.ties)
+        coefficients = dict(ensemble.mean)
+        keep = np.array([coefficients[n] != 0.0 for n in regression.names])
+    if fit.loss == "huber":
+        robust, _ = huber_refit(regression, keep, tied.nonnegative, fit.solver, ties=result.ties)
+        coefficients = dict(zip(regression.names, np.where(keep, robust.coefficients, 0.0)))
+    models = joint_models(result.specs, {k: float(v) for k, v in coefficients.items()}, result.tau, result.info)
+    return replace(result, models=models), ensemble

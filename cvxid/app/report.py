@@ -26,6 +26,11 @@ def plain(value):
     return value
 
 
+def records(frame) -> dict:
+    """A DataFrame as {row: {column: value}} with plain floats (JSON-ready)."""
+    return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
+
+
 def prepare_folder(out) -> Path:
     """The output folder, created if needed (a clear error when it cannot be)."""
     out = Path(out)

@@ -15,6 +15,7 @@ from pathlib import Path as FilePath
 import numpy as np
 import pandas as pd
 
+from cvxid.app.report import records
 from cvxid.data.experiment import Experiment
 from cvxid.diagnose.diagnosis import Diagnosis, Refinement, diagnose, refine
 from cvxid.errors import CvxidError, CvxidWarning
@@ -28,7 +29,8 @@ from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
 from cvxid.identify.stepwise import Stepwise, stepwise_output_error
 from cvxid.regression.algebraic import AlgebraicOrders
-from cvxid.regression.regression import DelayFamily, Regression
+from cvxid.regression.builder import RegressionBuilder, build_regression
+from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -101,8 +103,8 @@ class RunResult:
             },
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
-                "terms": _records(self.bootstrap.summary()),
-                "physical": _records(self.bootstrap.physical_summary()),
+                "terms": records(self.bootstrap.summary()),
+                "physical": records(self.bootstrap.physical_summary()),
             },
             "stepwise": None if self.stepwise is None else {
                 "history": self.stepwise.history.to_dict(orient="records"),
@@ -111,7 +113,7 @@ class RunResult:
             },
             "order_search": None if self.order_search is None else {
                 "best_order": self.order_search.best_order,
-                "table": _records(self.order_search.table),
+                "table": records(self.order_search.table),
             },
         }
 
@@ -151,11 +153,6 @@ class RunResult:
 
     def __repr__(self) -> str:
         return self.summary()
-
-
-def _records(frame: pd.DataFrame) -> dict:
-    """A DataFrame as {row: {column: value}} with plain floats (JSON-ready)."""
-    return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
 
 
 def run(spec: ProblemSpec | str | FilePath):
@@ -213,11 +210,12 @@ def _identify(spec: ProblemSpec) -> RunResult:
     if fit.orders:
         model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
     exact = model_spec.delay is not None and model_spec.delay.exact
-    family = DelayFamily(model_spec, train, velocity, fit.window)
-    test_family = DelayFamily(model_spec, test, velocity, fit.window) if test else None
+    family = RegressionBuilder(model_spec, train, velocity, fit.window)
+    test_family = RegressionBuilder(model_spec, test, velocity, fit.window) if test else None
     if fit.estimator == "stepwise_oe":
         return _stepwise(spec, family, test_family, train, test)
-    tau = profile_delay(family, nonnegative=model_spec.nonnegative).estimate if exact else None
+    whole = profile_delay(family, nonnegative=model_spec.nonnegative) if exact else None
+    tau = whole.estimate if exact else None
     regression = family.at(tau)
     validation = test_family.at(tau) if test else None
     search = None
@@ -226,7 +224,6 @@ def _identify(spec: ProblemSpec) -> RunResult:
         model_spec = model_spec.with_library(spec.library(search.best_order))
         regression = regression.subset(model_spec.column_names)
         validation = validation.subset(model_spec.column_names)
-        family = DelayFamily(model_spec, train, velocity, fit.window)
     problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
     path = Path.compute(
         problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator, debias=fit.debias
@@ -244,14 +241,16 @@ def _identify(spec: ProblemSpec) -> RunResult:
         keep = np.array([coefs[n] != 0 for n in problem.names])
     tau_info = None
     if exact:
-        profile = profile_delay(family, support=keep, nonnegative=model_spec.nonnegative)
+        same = keep.all() and not fit.orders  # the first profile was of this very problem
+        profile = whole if same else profile_delay(family, support=keep, nonnegative=model_spec.nonnegative,
+                                                   model=model_spec)
         tau = profile.estimate
-        refit = Problem.from_regression(family.at(tau), model_spec.nonnegative, fit.solver).refit(keep)
+        refit = Problem.from_regression(family.at(tau, model_spec), model_spec.nonnegative, fit.solver).refit(keep)
         coefs = dict(zip(problem.names, np.where(keep, refit.coefficients, 0.0)))
-        validation = test_family.at(tau).subset(model_spec.column_names) if test else None
+        validation = test_family.at(tau, model_spec) if test else None
         tau_info = profile.as_dict()
     if fit.loss == "huber":
-        robust, _ = huber_refit(family.at(tau), keep, model_spec.nonnegative, fit.solver)
+        robust, _ = huber_refit(family.at(tau, model_spec), keep, model_spec.nonnegative, fit.solver)
         coefs = dict(zip(problem.names, np.where(keep, robust.coefficients, 0.0)))
     model = IdentifiedModel(model_spec, {n: float(c) for n, c in coefs.items()}, best.lam, tau=tau)
     if ensemble is not None:
@@ -268,16 +267,16 @@ def _identify(spec: ProblemSpec) -> RunResult:
     if spec.diagnose is not None and test is not None:
         settings = spec.diagnose
         refinement = refine(model, train, test, settings.candidates, settings.min_improvement,
-                            settings.max_steps if settings.refine else 0, velocity, fit.window)
+                            settings.max_steps if settings.refine else 0, velocity, fit.window,
+                            builders=(family, test_family))
         model = refinement.model
         diagnosis = refinement.diagnoses[0] if refinement.diagnoses else diagnose(
-            model, train, test, settings.candidates, velocity, fit.window)
+            model, train, test, settings.candidates, velocity, fit.window, builders=(family, test_family))
         if refinement.steps and model_spec.delay is not None and model_spec.delay.exact:
             tau_info = dict(tau_info, estimate=model.tau, interval=None, method="profile (after refinement)")
         model_spec = model.spec
-        problem = Problem.from_regression(
-            DelayFamily(model_spec, train, velocity, fit.window).at(model.tau), model_spec.nonnegative, fit.solver)
-        validation = DelayFamily(model_spec, test, velocity, fit.window).at(model.tau)
+        problem = Problem.from_regression(family.at(model.tau, model_spec), model_spec.nonnegative, fit.solver)
+        validation = test_family.at(model.tau, model_spec)
     polished = None
     if fit.refine == "output_error":
         polished = polish(model, train)
@@ -297,7 +296,7 @@ def _identify(spec: ProblemSpec) -> RunResult:
     )
 
 
-def _stepwise(spec: ProblemSpec, family: DelayFamily, test_family: DelayFamily | None, train: Experiment,
+def _stepwise(spec: ProblemSpec, family: RegressionBuilder, test_family: RegressionBuilder | None, train: Experiment,
               test: Experiment | None) -> RunResult:
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.identify.stepwise`), the final model polished at the sample step."""
@@ -330,8 +329,8 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
     orders = sorted({int(o) for o in orders})
     top = replace(spec.model, library=spec.library(orders[-1]))
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
-    train = train if train is not None else Regression.build(top, spec.experiment("train"), velocity)
-    test = test if test is not None else Regression.build(top, spec.experiment("test"), velocity)
+    train = train if train is not None else build_regression(top, spec.experiment("train"), velocity)
+    test = test if test is not None else build_regression(top, spec.experiment("test"), velocity)
     if boot is None and samples:
         boot = BootstrapSettings(samples, fraction, seed, n_jobs)
     return search_orders(top, spec.library, train, test, orders, fit.lambdas, fit.estimator, fit.debias,

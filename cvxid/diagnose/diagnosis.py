@@ -32,11 +32,12 @@ from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel
 from cvxid.identify.output_error import initial_state
 from cvxid.identify.problem import Problem
+from cvxid.identify.profile import profile_delay
 from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
 from cvxid.model.terms import DelayedSignal, Term
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.velocity import savgol_window
 from cvxid.simulate import SimulationDiverged, simulate
 
@@ -265,13 +266,16 @@ def diagnose(
     candidates: Sequence[str] | None = None,
     velocity: str = "savgol",
     window: float | None = None,
+    builders: tuple[RegressionBuilder, RegressionBuilder | None] | None = None,
 ) -> Diagnosis:
     """Rank ``candidates`` (catalogue names or term names) missing from ``model``
-    (``velocity`` and restart ``window`` as in :class:`~cvxid.regression.regression.DelayFamily`)."""
+    (``velocity`` and restart ``window`` as in :class:`~cvxid.regression.builder.RegressionBuilder`;
+    ``builders`` of the train and test data may be passed to reuse their columns)."""
     spec = model.spec
     terms = _candidate_terms(spec, candidates if candidates is not None else default_candidates(spec))
     extended = replace(spec, library=spec.library + list(terms.values()))
-    reg = DelayFamily(extended, train, velocity, window).at(model.tau)
+    train_rows, test_rows = builders or (None, None)
+    reg = _builder(spec, train, velocity, window, train_rows).at(model.tau, extended)
     names = list(reg.names)
     used = [names.index(n) for n in spec.column_names if model.coefficients.get(n, 0.0) != 0.0]
     scale = np.sqrt(np.mean(reg.P**2, axis=0))
@@ -286,7 +290,7 @@ def diagnose(
         err[name] = float((g @ r) ** 2 / max((g @ g) * (r @ r), 1e-300))
     drops = {}
     if test is not None:
-        treg = DelayFamily(extended, test, velocity, window).at(model.tau)
+        treg = _builder(spec, test, velocity, window, test_rows).at(model.tau, extended)
         base = Problem.from_regression(reg, spec.nonnegative)
         mask = np.zeros(len(names), bool)
         mask[used] = True
@@ -379,17 +383,16 @@ class Refinement:
 
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
-          velocity: str = "savgol", lam: float = 0.0, window: float | None = None) -> IdentifiedModel:
+          velocity: str = "savgol", lam: float = 0.0, window: float | None = None,
+          builder: RegressionBuilder | None = None) -> IdentifiedModel:
     """Least squares of ``spec`` on the named columns (plus the unpenalised ones); an exact
-    delay is profiled again on that support."""
-    from cvxid.identify.profile import profile_delay
-
-    family = DelayFamily(spec, train, velocity, window)
+    delay is profiled again on that support (``builder``: the train data's, to reuse)."""
+    family = _builder(spec, train, velocity, window, builder)
     names = spec.column_names
     mask = np.array([n in support for n in names]) | np.array([c.penalty == 0 for c in spec.columns])
     if spec.delay is not None and spec.delay.exact:
-        tau = profile_delay(family, support=mask, nonnegative=spec.nonnegative).estimate
-    fit = Problem.from_regression(family.at(tau), spec.nonnegative).refit(mask)
+        tau = profile_delay(family, support=mask, nonnegative=spec.nonnegative, model=spec).estimate
+    fit = Problem.from_regression(family.at(tau, spec), spec.nonnegative).refit(mask)
     coefs = {n: float(c) if m else 0.0 for n, c, m in zip(names, fit.coefficients, mask)}
     return IdentifiedModel(spec, coefs, lam, tau=tau)
 
@@ -403,9 +406,14 @@ def refine(
     max_steps: int = 5,
     velocity: str = "savgol",
     window: float | None = None,
+    builders: tuple[RegressionBuilder, RegressionBuilder] | None = None,
 ) -> Refinement:
     """Repeat diagnose → add the best effect → refit while the test equation error falls
-    by more than ``min_improvement`` (0.2: by 20 %)."""
+    by more than ``min_improvement`` (0.2: by 20 %).  ``builders`` of the train and test
+    data may be passed to reuse their columns."""
+    train_rows, test_rows = builders or (None, None)
+    train_rows = _builder(model.spec, train, velocity, window, train_rows)
+    test_rows = _builder(model.spec, test, velocity, window, test_rows)
     steps, diagnoses = [], []
     candidates = list(candidates) if candidates is not None else None
     for _ in range(max_steps):
@@ -413,19 +421,20 @@ def refine(
         pool = [c for c in pool if resolve_term(c, (model.spec.coordinate,)).name not in model.spec.column_names]
         if not pool:
             break
-        dx = diagnose(model, train, test, pool, velocity, window)
+        dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
         diagnoses.append(dx)
         best = dx.top
         if dx.ranking.loc[best, "validation_ratio"] < 1 + min_improvement:
             break
-        before = _test_mse(model, test, velocity, window)
+        before = _test_mse(model, test_rows)
         support = [n for n, c in model.coefficients.items() if c != 0.0]
         if best == "delay":  # a wrong delay: estimate it again on the same terms
-            new = refit(model.spec, train, support, None, velocity, model.lam, window)
+            new = refit(model.spec, train, support, None, velocity, model.lam, window, train_rows)
         else:
             spec2 = with_effect(model.spec, best)
-            new = refit(spec2, train, support + [dx.ranking.loc[best, "term"]], model.tau, velocity, model.lam, window)
-        after = _test_mse(new, test, velocity, window)
+            new = refit(spec2, train, support + [dx.ranking.loc[best, "term"]], model.tau, velocity, model.lam, window,
+                        train_rows)
+        after = _test_mse(new, test_rows)
         old_cmp, new_cmp = compare(model, test), compare(new, test)
         # accept only when a simulation agrees: the free-run or the k-step-ahead error must
         # fall too (equation errors alone accepted a spurious term in our hidden-effect trials)
@@ -450,6 +459,12 @@ def _improvement(old: Comparison, new: Comparison) -> float:
     return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))
 
 
-def _test_mse(model: IdentifiedModel, test: Experiment, velocity: str, window: float | None) -> float:
-    reg = DelayFamily(model.spec, test, velocity, window).at(model.tau)
+def _test_mse(model: IdentifiedModel, test_rows: RegressionBuilder) -> float:
+    reg = test_rows.at(model.tau, model.spec)
     return reg.mse(np.array([model.coefficients[n] for n in reg.names]))
+
+
+def _builder(spec: ModelSpec, experiment: Experiment, velocity: str, window: float | None,
+             given: RegressionBuilder | None) -> RegressionBuilder:
+    """The builder passed in, or a new one for ``spec`` on ``experiment``."""
+    return given if given is not None else RegressionBuilder(spec, experiment, velocity, window)

@@ -33,6 +33,7 @@ from cvxid.identify.problem import Problem
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, resolve_term
 from cvxid.model.terms import Term
+from cvxid.regression.builder import SystemBuilder
 
 
 def candidate_terms(specs: dict[str, ModelSpec], candidates: Sequence[str] | None = None) -> dict[str, Term]:
@@ -60,14 +61,17 @@ def _with(specs: dict[str, ModelSpec], terms: Sequence[Term]) -> dict[str, Model
 
 
 def diagnose_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
-                   velocity: str = "savgol", window: float | None = None) -> pd.DataFrame:
+                   velocity: str = "savgol", window: float | None = None,
+                   builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> pd.DataFrame:
     """The candidates ranked by the test equation error of the joint refit with each one
-    (column ``ratio``: below 1 the effect explains part of the error)."""
+    (column ``ratio``: below 1 the effect explains part of the error).  ``builders`` of
+    the train and test data may be passed to reuse their columns."""
     specs = result.specs
     terms = candidate_terms(specs, candidates)
     union = _with(specs, list(terms.values()))
-    fitted = JointRegression(union, train, velocity, window, result.ties).at(result.tau)
-    scored = JointRegression(union, test, velocity, window).at(result.tau)
+    train_rows, test_rows = builders or (train, test)
+    fitted = JointRegression(union, train_rows, velocity, window, result.ties).at(result.tau)
+    scored = JointRegression(union, test_rows, velocity, window).at(result.tau)
     base = [f"{label}:{n}" for label, s in specs.items() for n in s.column_names]
     nonnegative = [f"{label}:{n}" for label, s in specs.items() for n in s.nonnegative]
 
@@ -134,16 +138,20 @@ class JointRefinement:
 
 def refine_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
                  min_improvement: float = 0.2, max_steps: int = 5, velocity: str = "savgol",
-                 window: float | None = None) -> JointRefinement:
+                 window: float | None = None,
+                 builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> JointRefinement:
     """Add the best-ranked effect and re-identify (delay profiled again) while the effect's
     ratio, the test equation error and the test simulation error all fall by
-    ``min_improvement``."""
+    ``min_improvement``.  ``builders`` of the train and test data may be passed to reuse
+    their columns."""
     out = JointRefinement(result)
-    equation_error = joint_test_mse(result, test, velocity, window)
+    train_rows, test_rows = builders or (SystemBuilder(result.specs, train, velocity, window),
+                                         SystemBuilder(result.specs, test, velocity, window))
+    equation_error = joint_test_mse(result, test_rows)
     sim_error = simulation_error(result, test)
     for _ in range(max_steps + 1):
         try:
-            ranking = diagnose_joint(out.result, train, test, candidates, velocity, window)
+            ranking = diagnose_joint(out.result, train, test, candidates, velocity, window, (train_rows, test_rows))
         except CvxidError:
             break
         out.rankings.append(ranking)
@@ -152,8 +160,8 @@ def refine_joint(result: JointResult, train: Experiment, test: Experiment, candi
         best = ranking.index[0]
         term = ranking.loc[best, "term"]
         specs = _with(out.result.specs, [resolve_term(term, tuple(out.result.specs))])
-        trial = identify_joint(specs, train, out.result.ties, velocity, window=window)
-        new_equation = joint_test_mse(trial, test, velocity, window)
+        trial = identify_joint(specs, train_rows, out.result.ties)
+        new_equation = joint_test_mse(trial, test_rows)
         new_sim = simulation_error(trial, test)
         keep = 1 - min_improvement
         accepted = (ranking["ratio"].iloc[0] <= keep  # the effect itself, at the current delay

@@ -94,8 +94,8 @@ class Bootstrap:
         )
 
 
-def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection):
-    problem = Problem.from_regression(regression, nonnegative, solver, row_weights=counts)
+def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection, ties):
+    problem = Problem.from_regression(regression, nonnegative, solver, row_weights=counts, ties=ties)
     if validate is None:  # out-of-bag rows validate (neighbouring rows are correlated: optimistic)
         oob = counts == 0
         P, p = regression.P[oob], regression.p[oob]
@@ -118,6 +118,7 @@ def bootstrap(
     selection: str = "min",
     physical: Callable[[dict], dict] | None = None,
     show_progress: bool = True,
+    ties=(),
 ) -> Bootstrap:
     """Run ``settings.samples`` resampled paths; see the module docstring.
 
@@ -129,7 +130,7 @@ def bootstrap(
     size = max(int(round(settings.fraction * n)), regression.shape[1] + 1)
     draws = [rng.multinomial(size, np.full(n, 1.0 / n)) for _ in range(int(settings.samples))]
     task = delayed(_one_sample)
-    args = (tuple(nonnegative), solver, lambdas, validate, estimator, debias, selection)
+    args = (tuple(nonnegative), solver, lambdas, validate, estimator, debias, selection, tuple(ties))
     # joblib's default (loky) backend limits each worker's BLAS threads to its share of
     # the cores; a user's joblib.parallel_config (dask, ray, …) applies here as well
     results = Parallel(n_jobs=settings.n_jobs)(

@@ -27,17 +27,19 @@ from typing import Sequence
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import least_squares, minimize_scalar
+from scipy.optimize import least_squares
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel
 from cvxid.identify.output_error import initial_state
 from cvxid.identify.problem import Problem
+from cvxid.identify.profile import profile_delay
 from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import parse_term
-from cvxid.regression.regression import DelayFamily, Regression
+from cvxid.regression.builder import SystemBuilder
+from cvxid.regression.regression import Regression
 from cvxid.simulate import (
     CoupledSystem,
     Equation,
@@ -47,7 +49,7 @@ from cvxid.simulate import (
 )
 
 Tie = tuple[str, str, float]
-JOINT_SCHEMA = "cvxid.identify.joint/1"
+JOINT_SCHEMA = "cvxid.joint/1"
 
 
 @dataclass(frozen=True)
@@ -114,7 +116,7 @@ class JointResult:
         return [m.equation() for m in self.models.values()]
 
     def to_dict(self) -> dict:
-        """A JSON-ready description (schema ``cvxid.identify.joint/1``): every equation's model
+        """A JSON-ready description (schema ``cvxid.joint/1``): every equation's model
         (schema ``cvxid.identified/1``), the delay and the ties."""
         return {"schema": JOINT_SCHEMA, "tau": float(self.tau),
                 "ties": [{"left": a, "right": b, "factor": float(f)} for a, b, f in self.ties],
@@ -171,7 +173,7 @@ def joint_forces(specs: dict[str, ModelSpec], experiment: Experiment, t: np.ndar
                             for s in specs.values()])
 
 
-def _check(specs: dict[str, ModelSpec]) -> tuple[float, float]:
+def _check(specs: dict[str, ModelSpec]):
     delays = {(s.delay.coordinate, s.delay.tau_min, s.delay.tau_max) for s in specs.values() if s.delay}
     if len(delays) != 1 or any(s.delay is None or not s.delay.exact for s in specs.values()):
         raise CvxidError("a joint identification needs one shared exact delay (method = \"exact\") in every "
@@ -179,8 +181,6 @@ def _check(specs: dict[str, ModelSpec]) -> tuple[float, float]:
     coords = [s.coordinate for s in specs.values()]
     if len(set(coords)) != len(coords):
         raise CvxidError(f"every equation needs its own coordinate; got {coords}")
-    _, lo, hi = delays.pop()
-    return lo, hi
 
 
 def _check_ties(specs: dict[str, ModelSpec], ties: Sequence[Tie]):
@@ -193,53 +193,48 @@ def _check_ties(specs: dict[str, ModelSpec], ties: Sequence[Tie]):
 
 
 class JointRegression:
-    """The stacked regression of every equation, built once and evaluated at any delay."""
+    """The stacked regression of every equation (from ``rows``, a
+    :class:`~cvxid.regression.builder.SystemBuilder` of the data or the experiments
+    themselves), evaluated at any delay."""
 
-    def __init__(self, specs: dict[str, ModelSpec], experiments, velocity: str = "savgol",
-                 window: float | None = None, ties: Sequence[Tie] = ()):
+    def __init__(self, specs: dict[str, ModelSpec], rows, velocity: str = "savgol", window: float | None = None,
+                 ties: Sequence[Tie] = ()):
         self.specs = specs
-        self.bounds = _check(specs)
+        _check(specs)
         _check_ties(specs, ties)
         self.ties = tuple(ties)
-        self.families = {label: DelayFamily(spec, experiments, velocity, window) for label, spec in specs.items()}
+        self.rows = rows if isinstance(rows, SystemBuilder) else SystemBuilder(specs, rows, velocity, window)
         self.nonnegative = [f"{label}:{n}" for label, spec in specs.items() for n in spec.nonnegative]
 
     def at(self, tau: float) -> Regression:
-        return Regression.block({label: self.families[label].at(tau) for label in self.specs})
+        return self.rows.at(tau, self.specs)
 
     def problem(self, tau: float) -> Problem:
         return Problem.from_regression(self.at(tau), self.nonnegative, ties=self.ties)
 
-    def value(self, tau: float) -> float:
-        problem = self.problem(tau)
-        return problem.refit(np.ones(problem.k, bool)).train_mse
-
-    def identify(self, grid: int = 41) -> JointResult:
-        """Least squares of every equation, the delay profiled on the joint optimal value."""
-        lo, hi = self.bounds
-        taus = np.linspace(lo, hi, grid)
-        values = np.array([self.value(t) for t in taus])
-        i = int(np.argmin(values))
-        best = minimize_scalar(self.value, bounds=(taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]),
-                               method="bounded", options={"xatol": 1e-6 * hi})
-        tau = float(best.x) if best.fun <= values[i] else float(taus[i])
+    def identify(self) -> JointResult:
+        """Least squares of every equation, the delay profiled on the joint optimal value
+        (:func:`~cvxid.identify.profile.profile_delay`, with its interval)."""
+        profile = profile_delay(self.rows, nonnegative=self.nonnegative, model=self.specs, ties=self.ties)
+        tau = profile.estimate
         problem = self.problem(tau)
         fit = problem.refit(np.ones(problem.k, bool))
         coefficients = dict(zip(problem.names, map(float, fit.coefficients)))
-        info = {"method": "equation_error", "train_mse": fit.train_mse}
-        return JointResult(_models(self.specs, coefficients, tau, info), tau, (taus, values), self.ties, dict(info))
+        info = {"method": "equation_error", "train_mse": fit.train_mse, "tau_interval": list(profile.interval)}
+        return JointResult(joint_models(self.specs, coefficients, tau, info), tau, (profile.taus, profile.values),
+                           self.ties, dict(info))
 
 
-def identify_joint(specs: dict[str, ModelSpec], experiments: Sequence[Experiment] | Experiment,
-                   ties: Sequence[Tie] = (), velocity: str = "savgol", grid: int = 41,
+def identify_joint(specs: dict[str, ModelSpec], rows, ties: Sequence[Tie] = (), velocity: str = "savgol",
                    window: float | None = None) -> JointResult:
     """Least squares of every equation in one problem, ``ties`` (``("eq:column",
     "eq:column", factor)``: the first is ``factor`` times the second) holding across
-    them, the shared exact delay profiled on the joint optimal value."""
-    return JointRegression(specs, experiments, velocity, window, ties).identify(grid)
+    them, the shared exact delay profiled on the joint optimal value.  ``rows``: the
+    experiments, or a :class:`~cvxid.regression.builder.SystemBuilder` of them to reuse."""
+    return JointRegression(specs, rows, velocity, window, ties).identify()
 
 
-def _models(specs: dict[str, ModelSpec], coefficients: dict[str, float], tau: float, info: dict):
+def joint_models(specs: dict[str, ModelSpec], coefficients: dict[str, float], tau: float, info: dict):
     models = {}
     for label, spec in specs.items():
         coefs = {n: coefficients.get(f"{label}:{n}", 0.0) for n in spec.column_names}
@@ -247,9 +242,10 @@ def _models(specs: dict[str, ModelSpec], coefficients: dict[str, float], tau: fl
     return models
 
 
-def joint_test_mse(result: JointResult, experiments, velocity: str = "savgol", window: float | None = None) -> float:
-    """Mean squared equation error of ``result`` on other data, all equations stacked."""
-    regression = JointRegression(result.specs, experiments, velocity, window).at(result.tau)
+def joint_test_mse(result: JointResult, rows, velocity: str = "savgol", window: float | None = None) -> float:
+    """Mean squared equation error of ``result`` on other data (experiments or their
+    :class:`~cvxid.regression.builder.SystemBuilder`), all equations stacked."""
+    regression = JointRegression(result.specs, rows, velocity, window).at(result.tau)
     coefficients = result.coefficients
     return regression.mse(np.array([coefficients.get(n, 0.0) for n in regression.names]))
 
@@ -389,7 +385,7 @@ class _PolishProblem:
         values = {k: float(v[0]) for k, v in self.values(theta[None, :]).items()}
         coefficients = dict(self.base.coefficients)
         coefficients.update({k: values[k] for k in self.slots})
-        return replace(self.base, models=_models(self.base.specs, coefficients, values["tau"], info),
+        return replace(self.base, models=joint_models(self.base.specs, coefficients, values["tau"], info),
                        tau=values["tau"], info=info)
 
 

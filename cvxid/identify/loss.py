@@ -29,14 +29,14 @@ def huber_weights(residual: np.ndarray, k: float = HUBER_K) -> np.ndarray:
 
 
 def huber_refit(regression: Regression, support: np.ndarray, nonnegative=(), solver: str = "CLARABEL",
-                iterations: int = 20, tol: float = 1e-8) -> tuple[Fit, np.ndarray]:
-    """Huber fit on ``support`` (plus the unpenalised columns); returns the fit and the
-    final row weights."""
-    fit = Problem.from_regression(regression, nonnegative, solver).refit(support)
+                iterations: int = 20, tol: float = 1e-8, ties=()) -> tuple[Fit, np.ndarray]:
+    """Huber fit on ``support`` (plus the unpenalised columns), the sign constraints and
+    ``ties`` kept; returns the fit and the final row weights."""
+    fit = Problem.from_regression(regression, nonnegative, solver, ties=ties).refit(support)
     weights = np.ones(regression.shape[0])
     for _ in range(iterations):
         weights = huber_weights(regression.residual(fit.coefficients))
-        new = Problem.from_regression(regression, nonnegative, solver, row_weights=weights).refit(support)
+        new = Problem.from_regression(regression, nonnegative, solver, row_weights=weights, ties=ties).refit(support)
         change = np.max(np.abs(new.coefficients - fit.coefficients) / np.maximum(np.abs(fit.coefficients), 1e-12))
         fit = new
         if change < tol:

@@ -119,13 +119,9 @@ class Problem:
         index = {self.names[i]: j for j, i in enumerate(self._rest)}
         self.constraints = {f"c[{n}] >= 0": self.c[index[n]] >= 0 for n in self.nonnegative}
         for a, b, f in self.ties:  # physical c_a = f c_b, in scaled units
-            self.constraints[f"c[{a}] = {f:g} c[{b}]"] = self.c[index[a]] == self._tie_factor(a, b, f) * self.c[index[b]]
+            self.constraints[f"c[{a}] = {f:g} c[{b}]"] = self.c[index[a]] == _tie_factor(self.reduced, self.names, a, b, f) * self.c[index[b]]
         self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
         self.regression: Regression | None = None  # the rows behind the factor, when known
-
-    def _tie_factor(self, a: str, b: str, factor: float) -> float:
-        scale = self.reduced.column_scale
-        return factor * scale[self.names.index(a)] / scale[self.names.index(b)]
 
     def _full(self, rest: np.ndarray) -> np.ndarray:
         """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
@@ -263,41 +259,11 @@ class Problem:
 
     def refit(self, support, lam: float = 0.0) -> Fit:
         """Least squares on ``support`` (plus every unpenalised column), keeping the sign
-        constraints: the debiased estimate (scipy's bounded least squares)."""
+        constraints and the ties: the debiased estimate."""
         mask = np.asarray(support, dtype=bool) | (self.penalties == 0)
-        for a, b, _ in self.ties:  # a tie keeps both of its columns or neither
-            ia, ib = self.names.index(a), self.names.index(b)
-            mask[ia] = mask[ib] = mask[ia] or mask[ib]
-        idx = np.flatnonzero(mask)
-        lower = np.array([0.0 if self.names[i] in self.nonnegative else -np.inf for i in idx])
         start = time.perf_counter()
-        scaled = np.zeros(self.k)
-        if self.ties:
-            scaled[idx] = self._tied_least_squares(idx, lower)
-        else:
-            sol = lsq_linear(self.reduced.R[:, idx], self.reduced.r, bounds=(lower, np.inf), method="bvls")
-            if not sol.success:
-                raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
-            scaled[idx] = sol.x
-        fit = self._finish(lam, scaled, "optimal", time.perf_counter() - start)
-        return fit
-
-    def _tied_least_squares(self, idx: np.ndarray, lower: np.ndarray) -> np.ndarray:
-        """Least squares on columns ``idx`` with the sign bounds and the ties (cvxpy)."""
-        c = cp.Variable(idx.size)
-        where = {self.names[i]: j for j, i in enumerate(idx)}
-        cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
-        cons += [c[where[a]] == self._tie_factor(a, b, f) * c[where[b]] for a, b, f in self.ties]
-        problem = cp.Problem(cp.Minimize(cp.sum_squares(self.reduced.R[:, idx] @ c - self.reduced.r)), cons)
-        try:
-            problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
-        except cp.error.SolverError as exc:
-            raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
-        if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
-            raise SolverFailure("the sign constraints and the ties cannot all hold together")
-        if problem.status != cp.OPTIMAL:
-            raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
-        return c.value
+        scaled = constrained_least_squares(self.reduced, self.names, mask, self.nonnegative, self.ties)
+        return self._finish(lam, scaled, "optimal", time.perf_counter() - start)
 
     def __str__(self) -> str:
         red = self.reduced
@@ -315,3 +281,45 @@ class Problem:
         return "\n".join(lines)
 
     __repr__ = __str__
+
+
+def _tie_factor(reduced: Reduced, names, a: str, b: str, factor: float) -> float:
+    """The tie :math:`c_a = \rho c_b` in scaled units."""
+    scale = reduced.column_scale
+    return factor * scale[names.index(a)] / scale[names.index(b)]
+
+
+def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), ties=()) -> np.ndarray:
+    """Scaled least-squares coefficients of the reduced regression on the columns in
+    ``mask`` (the others zero), ``nonnegative`` columns kept ``>= 0`` (scipy's bounded
+    least squares) and ``ties`` ``(a, b, factor)``: :math:`c_a = \rho c_b` (then a small
+    cvxpy problem).  A tie keeps both of its columns or neither."""
+    names = tuple(names)
+    mask = np.array(mask, dtype=bool)
+    for a, b, _ in ties:
+        ia, ib = names.index(a), names.index(b)
+        mask[ia] = mask[ib] = mask[ia] or mask[ib]
+    idx = np.flatnonzero(mask)
+    lower = np.array([0.0 if names[i] in nonnegative else -np.inf for i in idx])
+    scaled = np.zeros(len(names))
+    if not ties:
+        sol = lsq_linear(reduced.R[:, idx], reduced.r, bounds=(lower, np.inf), method="bvls")
+        if not sol.success:
+            raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
+        scaled[idx] = sol.x
+        return scaled
+    c = cp.Variable(idx.size)
+    where = {names[i]: j for j, i in enumerate(idx)}
+    cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
+    cons += [c[where[a]] == _tie_factor(reduced, names, a, b, f) * c[where[b]] for a, b, f in ties]
+    problem = cp.Problem(cp.Minimize(cp.sum_squares(reduced.R[:, idx] @ c - reduced.r)), cons)
+    try:
+        problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
+    except cp.error.SolverError as exc:
+        raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
+    if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+        raise SolverFailure("the sign constraints and the ties cannot all hold together")
+    if problem.status != cp.OPTIMAL:
+        raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
+    scaled[idx] = c.value
+    return scaled

@@ -22,8 +22,7 @@ from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
 from cvxid.errors import CvxidWarning
-from cvxid.identify.problem import Problem
-from cvxid.regression.regression import DelayFamily
+from cvxid.identify.problem import constrained_least_squares
 
 GRID = 41
 
@@ -55,23 +54,36 @@ def effective_rows(residual: np.ndarray) -> float:
     return float(max(1.0, n / (1 + 2 * acf[1:stop].sum())))
 
 
-def profile_delay(
-    family: DelayFamily, support=None, nonnegative=(), grid: int = GRID, level: float = 0.95
-) -> DelayProfile:
-    """Profile the least-squares optimal value over the delay (on ``support``: a boolean
-    mask over the model's columns, all of them by default)."""
-    delay = family.model.delay
+def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level: float = 0.95, model=None,
+                  ties=()) -> DelayProfile:
+    """Profile the least-squares optimal value over the delay.
+
+    ``builder`` makes the regression at any delay (a
+    :class:`~cvxid.regression.builder.RegressionBuilder` for ``model``, by default its own,
+    or a :class:`~cvxid.regression.builder.SystemBuilder`); ``support`` is a boolean mask
+    over the columns (all by default), ``nonnegative`` and ``ties`` the constraints kept.
+    """
+    delay = builder.delay
     cache: dict[float, float] = {}
+
+    def regression(tau: float):
+        with warnings.catch_warnings():
+            # at tau = 0 an unknown gain's column equals x: a poor candidate, not news
+            warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
+            reg = builder.at(tau, model)
+            return reg, reg.reduce()
+
+    def fit(tau: float):
+        reg, reduced = regression(tau)
+        mask = np.ones(len(reg.names), bool) if support is None else np.asarray(support, bool)
+        mask = mask | (reg.penalties == 0)
+        return reg, reduced, constrained_least_squares(reduced, reg.names, mask, nonnegative, ties)
 
     def value(tau: float) -> float:
         tau = float(tau)
         if tau not in cache:
-            with warnings.catch_warnings():
-                # at tau = 0 an unknown gain's column equals x: a poor candidate, not news
-                warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
-                problem = Problem.from_regression(family.at(tau), nonnegative)
-            mask = np.ones(problem.k, bool) if support is None else np.asarray(support, bool)
-            cache[tau] = problem.refit(mask).train_mse
+            _, reduced, scaled = fit(tau)
+            cache[tau] = reduced.mse(scaled)
         return cache[tau]
 
     taus = np.linspace(delay.tau_min, delay.tau_max, grid)
@@ -80,10 +92,8 @@ def profile_delay(
     lo, hi = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
     best = minimize_scalar(value, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6 * delay.tau_max})
     tau = float(best.x) if best.fun <= values[i] else float(taus[i])
-    regression = family.at(tau)
-    problem = Problem.from_regression(regression, nonnegative)
-    mask = np.ones(problem.k, bool) if support is None else np.asarray(support, bool)
-    n_eff = effective_rows(regression.residual(problem.refit(mask).coefficients))
+    reg, reduced, scaled = fit(tau)
+    n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
     bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
     interval = (_crossing(value, tau, delay.tau_min, bound, taus), _crossing(value, tau, delay.tau_max, bound, taus))
     order = np.argsort(list(cache))

@@ -45,7 +45,8 @@ from cvxid.identify.profile import profile_delay
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
 from cvxid.progress import progress
-from cvxid.regression.regression import DelayFamily, Regression
+from cvxid.regression.builder import RegressionBuilder
+from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import noise_level
 
 
@@ -126,7 +127,7 @@ def _backward(pool, fit, rms, current, base, train, step, floor, tolerance, rows
         rows.append({"step": len(rows), "action": "remove", "term": removable[best], "rms": rms})
 
 
-def stepwise_output_error(spec: ModelSpec, family: DelayFamily, train: Experiment, base: Sequence[str] | None = None,
+def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Experiment, base: Sequence[str] | None = None,
                           min_gain: float = 0.01, tolerance: float = 0.005, step: float = 1e-3,
                           n_jobs: int = 2) -> Stepwise:
     """Select the library terms of ``spec`` by simulation error on ``train`` (see the

@@ -20,14 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.interpolate import CubicSpline
 
-from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
-from cvxid.model.equation import ModelSpec
-from cvxid.model.terms import DelayedSignal, velocity_symbol
-from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform
-from cvxid.regression.velocity import estimate_velocity
 
 RANK_TOL = 1e-10
 """A scaled column whose QR pivot is below this share of the largest is dependent."""
@@ -47,6 +41,11 @@ class Reduced:
     def to_physical(self, scaled: np.ndarray) -> np.ndarray:
         return np.asarray(scaled) * self.target_scale / self.column_scale
 
+    def mse(self, scaled: np.ndarray) -> float:
+        """Mean squared equation error of scaled coefficients, in physical units."""
+        resid = self.R @ np.asarray(scaled, dtype=float) - self.r
+        return float((resid @ resid + self.rho2) / self.rows * self.target_scale**2)
+
 
 
 @dataclass(frozen=True)
@@ -59,18 +58,6 @@ class Regression:
     groups: tuple[str, ...]
     penalties: np.ndarray
     experiments: tuple[str, ...] = ()
-
-    @classmethod
-    def build(
-        cls,
-        model: ModelSpec,
-        experiments: Experiment | list[Experiment],
-        velocity: str = "savgol",
-        tau: float | None = None,
-    ) -> "Regression":
-        """Transform one or several experiments (stacked) into a regression for ``model``
-        (for an exact delay, at the delay ``tau``)."""
-        return DelayFamily(model, experiments, velocity).at(tau)
 
     @classmethod
     def block(cls, regressions: dict[str, "Regression"]) -> "Regression":
@@ -174,121 +161,4 @@ class Regression:
             f"Regression: {n} rows × {k} columns (experiments: {', '.join(self.experiments)}), "
             f"target rms {np.sqrt(np.mean(self.p ** 2)):.3e}\n"
             + self.table().to_string(float_format=lambda v: f"{v:.3e}")
-        )
-
-
-def states_of(model: ModelSpec, experiment: Experiment, velocity: str) -> dict[str, np.ndarray]:
-    """Positions of every coordinate the model reads and, where a column needs one, their
-    velocities (measured or estimated)."""
-    states = {c: experiment.output(c) for c in model.coordinates}
-    for coord in model.coordinates:
-        symbol = velocity_symbol(coord)
-        if not any(c.term.needs_velocity and symbol in c.term.symbols for c in model.columns):
-            continue
-        if velocity == "measured":
-            if coord not in experiment.velocities:
-                raise CvxidError(
-                    f"velocity = 'measured' but experiment '{experiment.name}' has no measured "
-                    f"velocity of '{coord}'; name its column or use an estimator"
-                )
-            states[symbol] = experiment.velocities[coord]
-        else:
-            states[symbol] = estimate_velocity(states[coord], experiment.time, velocity)
-    return states
-
-
-def _windows(experiment: Experiment, window: float | None) -> list[np.ndarray]:
-    """Sample indices of consecutive restart windows (the whole record without ``window``).
-
-    The integrals of the algebraic operation restart in each window, so their polynomial
-    weights stay bounded on long records (and any offset cannot grow over the whole record).
-    """
-    n = experiment.n
-    if window is None:
-        return [np.arange(n)]
-    length = int(round(window / experiment.dt))
-    if length < 10:
-        raise CvxidError(f"the restart window ({window:g} s) holds fewer than 10 samples; lengthen it")
-    return [np.arange(s, min(s + length, n)) for s in range(0, n - length // 2, length)]
-
-
-class DelayFamily:
-    """Regressions of one model and data over the delay :math:`\tau`.
-
-    Columns that do not depend on the delay are transformed once; :meth:`at` adds the
-    delayed signal :math:`x^{(q)}(t-\tau)` (interpolated by a cubic spline), as a column
-    when the gain is unknown or moved into the target when it is known.  With an exact
-    delay every experiment (and every restart window) restarts its integrals at
-    ``tau_max`` (the first ``tau_max`` seconds serve as the delayed signal's history), so
-    regressions at different delays share their rows and their errors compare.  With
-    ``window`` (seconds) the integrals restart in consecutive windows (stacked rows).
-    """
-
-    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | None = None):
-        self.model = model
-        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
-        exps = [segment for e in exps for segment in e.segments()]  # integrals restart after gaps
-        self.experiments = exps
-        exact = model.delay is not None and model.delay.exact
-        self.start = model.delay.tau_max if exact else 0.0
-        if window is not None and not window > 2 * self.start:
-            raise CvxidError(
-                f"the restart window ({window:g} s) must be longer than twice tau_max ({self.start:g} s)"
-            )
-        self.blocks = []
-        cols = [c for c in model.columns if not isinstance(c.term, DelayedSignal)]
-        for e in exps:
-            if exact and e.duration < 2 * self.start:
-                raise CvxidError(
-                    f"experiment '{e.name}' lasts {e.duration:g} s, too short for delays up to "
-                    f"tau_max = {self.start:g} s (it needs at least twice that); lower "
-                    "[model.delay] tau_max or use a longer record"
-                )
-            if np.ptp(e.input(model.input)) == 0:
-                raise CvxidError(
-                    f"experiment '{e.name}': input '{model.input}' is constant, so it does not "
-                    "excite the system; identification needs a varying input"
-                )
-            states = states_of(model, e, velocity)  # on the whole record: no edge effects per window
-            spline = CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None
-            for rows in _windows(e, window):
-                keep = rows[e.time[rows] >= e.time[rows[0]] + self.start - 1e-9 * e.dt]
-                transform = AlgebraicTransform(e.time[keep], AlgebraicOrders.for_model(model))
-                sliced = {k: v[keep] for k, v in states.items()}
-                base = {c.name: transform.column(*c.term.regression_signal(sliced)) for c in cols}
-                p = transform.column(e.input(model.input)[keep])
-                if not model.inertia:
-                    p = p - model.mass * transform.column(sliced[model.coordinate], 2)
-                self.blocks.append((transform, base, p, spline, e.time[keep]))
-
-    def at(self, tau: float | None = None) -> Regression:
-        model = self.model
-        exact = model.delay is not None and model.delay.exact
-        if exact:
-            if tau is None:
-                raise CvxidError("an exact-delay regression needs a delay tau")
-            if not model.delay.tau_min <= tau <= model.delay.tau_max:
-                raise CvxidError(
-                    f"tau = {tau:g} is outside [tau_min, tau_max] = [{model.delay.tau_min:g}, "
-                    f"{model.delay.tau_max:g}]"
-                )
-        cols = model.columns
-        Ps, ps = [], []
-        for transform, base, p, spline, t in self.blocks:
-            if exact:
-                shifted = spline(t - tau)
-                if model.delay.gain is not None:
-                    p = p + model.delay.gain * transform.column(shifted, model.delay.derivative)
-            Ps.append(np.column_stack([
-                transform.column(shifted, c.term.derivative) if isinstance(c.term, DelayedSignal) else base[c.name]
-                for c in cols
-            ]))
-            ps.append(p)
-        return Regression(
-            P=np.vstack(Ps),
-            p=np.concatenate(ps),
-            names=tuple(c.name for c in cols),
-            groups=tuple(c.group for c in cols),
-            penalties=np.array([c.penalty for c in cols]),
-            experiments=tuple(e.name for e in self.experiments),
         )

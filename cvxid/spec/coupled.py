@@ -41,7 +41,8 @@ JOINT_TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagn
 JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
-JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window"}
+JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window",
+                  "bootstrap", "n_jobs", "loss"}
 
 
 @dataclass(frozen=True)

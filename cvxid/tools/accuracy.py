@@ -36,7 +36,7 @@ from cvxid.identify.stlsq import stlsq
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.library import Library
 from cvxid.progress import progress
-from cvxid.regression.regression import DelayFamily
+from cvxid.regression.builder import RegressionBuilder
 from cvxid.spec.problem import ProblemSpec
 
 METHODS = ("paper as published", "paper (true v)", "paper", "taylor5", "exact", "exact+oe")
@@ -65,7 +65,7 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
         model = replace(base, library=library, delay=delay, orders=orders,
                         keep_initial_conditions=method == "paper as published")
         true_v = method in ("paper as published", "paper (true v)")
-        reg = DelayFamily(model, experiment, "measured" if true_v else "savgol").at(None)
+        reg = RegressionBuilder(model, experiment, "measured" if true_v else "savgol").at(None)
         problem = Problem.from_regression(reg, model.nonnegative)
         fit = stlsq(problem, 0.0) if paper else problem.refit(np.ones(problem.k, bool))
         return model.physical(dict(zip(reg.names, fit.coefficients))), None
@@ -73,7 +73,7 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
     delay = DelayedFeedback(base.coordinate, truth.system.derivative, gain, method="exact", tau_max=tau_max,
                             history=truth.system.history)
     model = replace(base, library=library, delay=delay)
-    family = DelayFamily(model, experiment, "savgol")
+    family = RegressionBuilder(model, experiment, "savgol")
     profile = profile_delay(family, nonnegative=model.nonnegative)
     reg = family.at(profile.estimate)
     fit = Problem.from_regression(reg, model.nonnegative).refit(np.ones(reg.shape[1], bool))

@@ -33,6 +33,7 @@ from cvxid.app.run import order_search
 from cvxid.errors import CvxidWarning
 from cvxid.identify.path import Path
 from cvxid.identify.problem import SOLVER_SETTINGS, Problem
+from cvxid.regression.builder import build_regression
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -88,7 +89,7 @@ def benchmark(spec: ProblemSpec, order: int | None = None, naive_lambdas: int = 
     fit = spec.fit
     lambdas = np.sort(fit.lambdas)[::-1]
     velocity = fit.velocity if fit.velocity in ("observer", "savgol", "spline") else "measured"
-    train = Regression.build(model, spec.experiment("train"), velocity)
+    train = build_regression(model, spec.experiment("train"), velocity)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)
         start = time.perf_counter()

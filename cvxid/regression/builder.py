@@ -1,0 +1,209 @@
+r"""The regression builder: one equation's data transformed once, regressions of any
+library at any delay.
+
+The algebraic operation (:mod:`cvxid.regression.algebraic`) turns every term into a
+column.  A :class:`RegressionBuilder` holds the transforms of the data (per experiment,
+gap-free segment and restart window) and transforms each term the first time a regression
+asks for it, so the λ path, the bootstrap, the order search, the delay profile and every
+candidate of the diagnosis read the same transformed columns: the data are transformed
+once per run.  :meth:`RegressionBuilder.at` adds the delayed signal
+:math:`x^{(q)}(t-\tau)` (a cubic spline of the record), as a column when the gain is
+unknown or moved into the target when it is known.
+
+With an exact delay every experiment (and every restart window) restarts its integrals at
+``tau_max`` (the first ``tau_max`` seconds serve as the delayed signal's history), so
+regressions at different delays share their rows and their errors compare.  With
+``window`` (seconds) the integrals restart in consecutive windows (stacked rows).
+
+:class:`SystemBuilder` stacks the builders of several equations into one block regression
+(columns ``"coordinate:term"``) with a shared delay.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.model.equation import ModelSpec
+from cvxid.model.terms import DelayedSignal, Term
+from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform
+from cvxid.regression.regression import Regression
+from cvxid.regression.velocity import estimate_velocity
+
+
+def _windows(experiment: Experiment, window: float | None) -> list[np.ndarray]:
+    """Sample indices of consecutive restart windows (the whole record without ``window``).
+
+    The integrals of the algebraic operation restart in each window, so their polynomial
+    weights stay bounded on long records (and any offset cannot grow over the whole record).
+    """
+    n = experiment.n
+    if window is None:
+        return [np.arange(n)]
+    length = int(round(window / experiment.dt))
+    if length < 10:
+        raise CvxidError(f"the restart window ({window:g} s) holds fewer than 10 samples; lengthen it")
+    return [np.arange(s, min(s + length, n)) for s in range(0, n - length // 2, length)]
+
+
+class _Block:
+    """One restart window of one segment: its transform, rows and cached columns."""
+
+    def __init__(self, transform: AlgebraicTransform, rows: np.ndarray, segment: int, target: np.ndarray):
+        self.transform, self.rows, self.segment, self.target = transform, rows, segment, target
+        self.columns: dict[str, np.ndarray] = {}
+
+
+class RegressionBuilder:
+    """Regressions of one equation's data, for ``model`` and any model that differs from it
+    only in its library (the coordinate, input, inertia, delay and algebraic orders fix the
+    transform)."""
+
+    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | None = None):
+        self.model = model
+        self.velocity = velocity
+        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        self.experiments = [segment for e in exps for segment in e.segments()]  # integrals restart after gaps
+        exact = model.delay is not None and model.delay.exact
+        self.start = model.delay.tau_max if exact else 0.0
+        if window is not None and not window > 2 * self.start:
+            raise CvxidError(
+                f"the restart window ({window:g} s) must be longer than twice tau_max ({self.start:g} s)"
+            )
+        orders = AlgebraicOrders.for_model(model)
+        self._states: list[dict[str, np.ndarray]] = []
+        self._splines: list[CubicSpline | None] = []
+        self.blocks: list[_Block] = []
+        for i, e in enumerate(self.experiments):
+            if exact and e.duration < 2 * self.start:
+                raise CvxidError(
+                    f"experiment '{e.name}' lasts {e.duration:g} s, too short for delays up to "
+                    f"tau_max = {self.start:g} s (it needs at least twice that); lower "
+                    "[model.delay] tau_max or use a longer record"
+                )
+            if np.ptp(e.input(model.input)) == 0:
+                raise CvxidError(
+                    f"experiment '{e.name}': input '{model.input}' is constant, so it does not "
+                    "excite the system; identification needs a varying input"
+                )
+            self._states.append({c: e.output(c) for c in model.coordinates})
+            self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
+            for rows in _windows(e, window):
+                keep = rows[e.time[rows] >= e.time[rows[0]] + self.start - 1e-9 * e.dt]
+                transform = AlgebraicTransform(e.time[keep], orders)
+                p = transform.column(e.input(model.input)[keep])
+                if not model.inertia:
+                    p = p - model.mass * transform.column(e.output(model.coordinate)[keep], 2)
+                self.blocks.append(_Block(transform, keep, i, p))
+
+    @property
+    def delay(self):
+        """The model's delayed feedback (its bounds are the delay profile's)."""
+        return self.model.delay
+
+    # ------------------------------------------------------------------ states and columns
+    def _state(self, segment: int, symbol: str) -> np.ndarray:
+        """A position, or a velocity (measured or estimated on the whole segment, so restart
+        windows see no edge effects), computed once."""
+        states = self._states[segment]
+        if symbol not in states:
+            coord = symbol[:-1]
+            e = self.experiments[segment]
+            if not symbol.endswith("'") or coord not in self.model.coordinates:
+                raise CvxidError(f"no signal '{symbol}' in experiment '{e.name}'")
+            if self.velocity == "measured":
+                if coord not in e.velocities:
+                    raise CvxidError(
+                        f"velocity = 'measured' but experiment '{e.name}' has no measured "
+                        f"velocity of '{coord}'; name its column or use an estimator"
+                    )
+                states[symbol] = e.velocities[coord]
+            else:
+                states[symbol] = estimate_velocity(states[coord], e.time, self.velocity)
+        return states[symbol]
+
+    def _column(self, block: _Block, term: Term) -> np.ndarray:
+        if term.name not in block.columns:
+            symbols = list(self.model.coordinates)  # positions always; velocities where the column needs them
+            if term.needs_velocity:
+                symbols += sorted(s for s in term.symbols if s.endswith("'"))
+            states = {s: self._state(block.segment, s)[block.rows] for s in symbols}
+            block.columns[term.name] = block.transform.column(*term.regression_signal(states))
+        return block.columns[term.name]
+
+    def _check(self, model: ModelSpec):
+        same = (model.coordinates, model.input, model.inertia, model.mass, model.delay, model.orders,
+                model.keep_initial_conditions)
+        mine = (self.model.coordinates, self.model.input, self.model.inertia, self.model.mass, self.model.delay,
+                self.model.orders, self.model.keep_initial_conditions)
+        if same != mine:
+            raise CvxidError("this regression builder was made for another coordinate, input, inertia or delay; "
+                             "build one for the new model")
+
+    # ------------------------------------------------------------------ regressions
+    def at(self, tau: float | None = None, model: ModelSpec | None = None) -> Regression:
+        """The regression of ``model`` (the builder's own by default) at the delay ``tau``
+        (an exact delay needs one)."""
+        model = self.model if model is None else model
+        self._check(model)
+        exact = model.delay is not None and model.delay.exact
+        if exact:
+            if tau is None:
+                raise CvxidError("an exact-delay regression needs a delay tau")
+            if not model.delay.tau_min <= tau <= model.delay.tau_max:
+                raise CvxidError(
+                    f"tau = {tau:g} is outside [tau_min, tau_max] = [{model.delay.tau_min:g}, "
+                    f"{model.delay.tau_max:g}]"
+                )
+        cols = model.columns
+        Ps, ps = [], []
+        for block in self.blocks:
+            p = block.target
+            if exact:
+                t = self.experiments[block.segment].time[block.rows]
+                shifted = self._splines[block.segment](t - tau)
+                if model.delay.gain is not None:
+                    p = p + model.delay.gain * block.transform.column(shifted, model.delay.derivative)
+            Ps.append(np.column_stack([
+                block.transform.column(shifted, c.term.derivative) if isinstance(c.term, DelayedSignal)
+                else self._column(block, c.term) for c in cols
+            ]))
+            ps.append(p)
+        return Regression(
+            P=np.vstack(Ps),
+            p=np.concatenate(ps),
+            names=tuple(c.name for c in cols),
+            groups=tuple(c.group for c in cols),
+            penalties=np.array([c.penalty for c in cols]),
+            experiments=tuple(e.name for e in self.experiments),
+        )
+
+
+def build_regression(model: ModelSpec, experiments, velocity: str = "savgol", tau: float | None = None,
+                     window: float | None = None) -> Regression:
+    """Transform one or several experiments (stacked) into a regression for ``model`` (for
+    an exact delay, at the delay ``tau``)."""
+    return RegressionBuilder(model, experiments, velocity, window).at(tau)
+
+
+class SystemBuilder:
+    """The regressions of several equations (one :class:`RegressionBuilder` each, sharing
+    one delay), stacked into one block regression with columns ``"coordinate:term"``."""
+
+    def __init__(self, specs: dict[str, ModelSpec], experiments, velocity: str = "savgol",
+                 window: float | None = None):
+        self.specs = dict(specs)
+        self.builders = {label: RegressionBuilder(spec, experiments, velocity, window) for label, spec in specs.items()}
+
+    @property
+    def delay(self):
+        """The shared delayed feedback (its bounds are the delay profile's)."""
+        return next(iter(self.specs.values())).delay
+
+    def at(self, tau: float | None = None, model: dict[str, ModelSpec] | None = None) -> Regression:
+        """The block regression of ``model`` (equation label → model; the builder's own by
+        default) at the delay ``tau``."""
+        model = self.specs if model is None else model
+        return Regression.block({label: self.builders[label].at(tau, spec) for label, spec in model.items()})
