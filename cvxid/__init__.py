@@ -7,28 +7,30 @@ The main entry points:
 * :func:`compare`, :func:`residuals`, :func:`diagnose`, :func:`refine` — model checking.
 """
 
-from cvxid.app.run import RunResult, order_search, refine_spec, run
+from cvxid.app.result import RunResult
+from cvxid.app.run import order_search, refine_spec, run
 from cvxid.data.experiment import Experiment, from_frame, load
 from cvxid.diagnose.diagnosis import compare, diagnose, residuals, with_effect
 from cvxid.diagnose.diagnosis import refine as refine_model
 from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
-from cvxid.identified import IdentifiedModel
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
 from cvxid.identify.output_error import polish
 from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, Library, register_effect
-from cvxid.regression.builder import RegressionBuilder, build_regression
+from cvxid.model.system import SystemSpec
+from cvxid.regression.builder import RegressionBuilder, SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
 
 __version__ = "0.1.0"
 __all__ = [
-    "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "Library", "ModelSpec", "Path",
-    "Problem", "Regression", "RegressionBuilder", "build_regression", "RunResult", "SolverFailure", "compare", "diagnose", "from_frame", "load",
-    "load_problem", "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run",
-    "with_effect",
+    "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "IdentifiedSystem",
+    "Library", "ModelSpec", "Path", "Problem", "Regression", "RegressionBuilder", "RunResult", "SolverFailure",
+    "SystemBuilder", "SystemSpec", "build_regression", "compare", "diagnose", "from_frame", "load", "load_problem",
+    "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run", "with_effect",
 ]
 
 

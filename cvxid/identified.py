@@ -1,7 +1,12 @@
-"""The result of an identification: :class:`IdentifiedModel`.
+r"""The result of an identification: :class:`IdentifiedSystem` of
+:class:`IdentifiedModel` equations.
 
-It holds the regression coefficients, the physical parameters they map to, the selected
-support, and can print its equation, simulate itself and tabulate itself.
+An :class:`IdentifiedModel` is one identified equation: the regression coefficients, the
+physical parameters they map to, the selected support; it prints its equation, simulates
+itself and tabulates itself.  An :class:`IdentifiedSystem` holds :math:`N \ge 1` of them
+with the shared delay and the ties; it simulates every coordinate at once and is written
+to JSON in one schema (``cvxid.system/1``) whatever :math:`N` (files of the earlier
+``cvxid.identified/1`` and ``cvxid.joint/1`` schemas still load).
 """
 
 from __future__ import annotations
@@ -15,11 +20,22 @@ import pandas as pd
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
+from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
-from cvxid.simulate import System, simulate
+from cvxid.regression.velocity import initial_state
+from cvxid.simulate import (
+    CoupledSystem,
+    Equation,
+    SimulationDiverged,
+    System,
+    simulate,
+    simulate_coupled,
+)
 
 SCHEMA = "cvxid.identified/1"
+"""One equation's own format (also the format of each equation inside a system file)."""
+SYSTEM_SCHEMA = "cvxid.system/1"
 
 
 @dataclass(frozen=True)
@@ -193,21 +209,17 @@ class IdentifiedModel:
         return cls(spec, coefficients, lam, tau=tau)
 
     def save(self, path) -> None:
-        """Write the model as JSON (never pickle)."""
-        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+        """Write the model as JSON (never pickle), as a system of one equation."""
+        IdentifiedSystem.of(self).save(path)
 
     @classmethod
     def load(cls, path) -> "IdentifiedModel":
-        """Read a model written by :meth:`save`."""
-        try:
-            data = json.loads(Path(path).read_text())
-        except FileNotFoundError:
-            raise CvxidError(f"model file not found: {path}") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-            raise CvxidError(f"{path}: not a JSON model file ({exc})") from None
-        if not isinstance(data, dict):
-            raise CvxidError(f"{path}: not a JSON model file (a {type(data).__name__} at the top level)")
-        return cls.from_dict(data)
+        """Read a one-equation model file (written by :meth:`save` or by
+        :meth:`IdentifiedSystem.save`)."""
+        system = IdentifiedSystem.load(path)
+        if system.single is None:
+            raise CvxidError(f"{path} holds {len(system.models)} coupled equations: read it with IdentifiedSystem.load")
+        return system.single
 
     # ------------------------------------------------------------------ python-control
     def to_control(self, pade_order: int = 6):
@@ -223,3 +235,181 @@ class IdentifiedModel:
         from cvxid.export import linearized_tf
 
         return linearized_tf(self, pade_order)
+
+
+# ---------------------------------------------------------------------- systems
+@dataclass(frozen=True)
+class IdentifiedSystem:
+    """Identified equations by label (their coordinate), the shared delay, the delay
+    profile ``(taus, values)`` when one was computed, the ties and the fit's figures."""
+
+    models: dict[str, IdentifiedModel]
+    tau: float | None = None
+    profile: tuple[np.ndarray, np.ndarray] | None = None
+    ties: tuple[tuple[str, str, float], ...] = ()
+    info: dict = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, model: IdentifiedModel) -> "IdentifiedSystem":
+        """The system of one identified equation."""
+        return cls({model.spec.coordinate: model}, model.tau, info=dict(model.info))
+
+    @property
+    def single(self) -> IdentifiedModel | None:
+        """The model when there is one equation (``None`` for a coupled system)."""
+        return next(iter(self.models.values())) if len(self.models) == 1 else None
+
+    @property
+    def specs(self) -> dict[str, ModelSpec]:
+        return {label: m.spec for label, m in self.models.items()}
+
+    @property
+    def coordinates(self) -> list[str]:
+        return [m.spec.coordinate for m in self.models.values()]
+
+    def column(self, label: str, name: str) -> str:
+        """A column's name: bare for one equation, ``"label:name"`` for several."""
+        return name if len(self.models) == 1 else f"{label}:{name}"
+
+    @property
+    def coefficients(self) -> dict[str, float]:
+        """Every regression coefficient by column name."""
+        return {self.column(label, n): c for label, m in self.models.items() for n, c in m.coefficients.items()}
+
+    @property
+    def physical(self) -> dict[str, float]:
+        """Physical parameters: one equation's own names (``m``, ``k``, ``tau``); in a
+        coupled system see :func:`system_physical`."""
+        if self.single is not None:
+            return self.single.physical
+        return system_physical(self.specs, {label: m.coefficients for label, m in self.models.items()}, self.tau)
+
+    def equations(self) -> list[str]:
+        return [m.equation() for m in self.models.values()]
+
+    # ------------------------------------------------------------------ simulation
+    def system(self) -> CoupledSystem:
+        """The identified system, ready to simulate (each equation's input with gain 1)."""
+        equations, delayed, tau, history, derivative = [], None, 0.0, "zero", 0
+        for model in self.models.values():
+            s = model.system()
+            equations.append(Equation(model.spec.coordinate, float(s.mass), s.terms,
+                                      tuple(np.atleast_1d(s.coefficients)), 1.0, float(s.gain)))
+            if model.spec.delay is not None:
+                delayed, tau, history = model.spec.delay.coordinate, float(s.tau), s.history
+                derivative = model.spec.delay.derivative
+        return CoupledSystem(tuple(equations), delayed or equations[0].coordinate, tau, history, derivative)
+
+    def simulate(self, experiment: Experiment, initial: dict | None = None) -> dict[str, np.ndarray]:
+        """Free-run simulation of every coordinate under ``experiment``'s inputs, from
+        ``initial`` (coordinate → (position, velocity)) or the state estimated from the data."""
+        t = experiment.time
+        initial = initial or {c: initial_state(t, experiment.output(c)) for c in self.coordinates}
+        inputs = [experiment.input(m.spec.input) for m in self.models.values()]
+        x, _ = simulate_coupled(self.system(), t, inputs, {c: v[0] for c, v in initial.items()},
+                                {c: v[1] for c, v in initial.items()})
+        return x
+
+    def compare(self, experiment: Experiment) -> pd.DataFrame:
+        """Free-run fit (%) and RMS error of every coordinate on ``experiment``; a
+        diverging simulation gives fit -inf."""
+        try:
+            sim = self.simulate(experiment)
+        except SimulationDiverged:
+            sim = None
+        rows = []
+        for c in self.coordinates:
+            y = experiment.output(c)
+            if sim is None:
+                rows.append({"coordinate": c, "fit_percent": -np.inf, "rms": np.inf})
+            else:
+                rows.append({"coordinate": c, "fit_percent": fit_percent(y, sim[c]),
+                             "rms": float(np.sqrt(np.mean((sim[c] - y) ** 2)))})
+        return pd.DataFrame(rows).set_index("coordinate")
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict:
+        """A JSON-ready description (schema ``cvxid.system/1``): every equation's model,
+        the delay and the ties."""
+        return {"schema": SYSTEM_SCHEMA, "tau": None if self.tau is None else float(self.tau),
+                "ties": [{"left": a, "right": b, "factor": float(f)} for a, b, f in self.ties],
+                "equations": {label: m.to_dict() for label, m in self.models.items()}}
+
+    @classmethod
+    def from_dict(cls, data: dict) -> "IdentifiedSystem":
+        """Rebuild a system written by :meth:`to_dict` (or a file of the earlier one-equation
+        ``cvxid.identified/1`` or coupled ``cvxid.joint/1`` schema), checking every field."""
+        schema = data.get("schema")
+        if schema == SCHEMA:
+            return cls.of(IdentifiedModel.from_dict(data))
+        if schema not in (SYSTEM_SCHEMA, "cvxid.joint/1"):
+            raise CvxidError(f"not a cvxid model file (schema {schema!r}, expected {SYSTEM_SCHEMA!r}); write it "
+                             "again with IdentifiedSystem.save")
+        try:
+            tau = None if data["tau"] is None else float(data["tau"])
+            ties = tuple((str(t["left"]), str(t["right"]), float(t["factor"])) for t in data["ties"])
+            models = {str(k): IdentifiedModel.from_dict(v) for k, v in data["equations"].items()}
+        except CvxidError:
+            raise
+        except (KeyError, TypeError, ValueError, AttributeError) as exc:
+            raise CvxidError(f"the model file is incomplete or corrupted ({type(exc).__name__}: {exc})") from None
+        if not models:
+            raise CvxidError("the model file has no equations")
+        if tau is not None and (not np.isfinite(tau) or any(m.tau not in (None, tau) for m in models.values())):
+            raise CvxidError("the model file's delay is not finite or differs between its equations")
+        system = cls(models, tau, ties=ties)
+        names = set(system.coefficients)
+        for a, b, factor in ties:
+            for name in (a, b):
+                if name not in names:
+                    raise CvxidError(f"the model file's tie {a!r} = {factor:g} {b!r} names an unknown column {name!r}")
+        return system
+
+    def save(self, path) -> None:
+        """Write the system as JSON (never pickle)."""
+        Path(path).write_text(json.dumps(self.to_dict(), indent=2))
+
+    @classmethod
+    def load(cls, path) -> "IdentifiedSystem":
+        """Read a model file (``cvxid.system/1``, or the earlier schemas)."""
+        try:
+            data = json.loads(Path(path).read_text())
+        except FileNotFoundError:
+            raise CvxidError(f"model file not found: {path}") from None
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as exc:
+            raise CvxidError(f"{path}: not a JSON model file ({exc})") from None
+        if not isinstance(data, dict):
+            raise CvxidError(f"{path}: not a JSON model file (a {type(data).__name__} at the top level)")
+        return cls.from_dict(data)
+
+    def __repr__(self) -> str:
+        if self.single is not None:
+            return repr(self.single)
+        tau = "" if self.tau is None else f": tau = {self.tau:.5g}"
+        lines = [f"IdentifiedSystem of {len(self.models)} equations{tau}"]
+        lines += [f"  {e}" for e in self.equations()]
+        if self.ties:
+            lines.append("  ties: " + ", ".join(f"{a} = {f:g} {b}" for a, b, f in self.ties))
+        return "\n".join(lines)
+
+
+def system_physical(specs: dict[str, ModelSpec], coefficients: dict[str, dict[str, float]], tau: float | None,
+                    extra_terms: dict[str, dict[str, float]] | None = None) -> dict[str, float]:
+    """Physical parameters of every equation of a coupled system: a name from
+    ``[model.equation.names]`` where one is given (``"-alpha"`` is minus the coefficient),
+    else ``"coordinate:term"``; the inertia ``"coordinate:m"``; the delay ``tau``."""
+    out = {}
+    for coord, spec in specs.items():
+        mass, terms, _, gain = spec.physical_terms(coefficients[coord], tau)
+        terms = dict(terms, **(extra_terms or {}).get(coord, {}))
+        values = {spec.inertia_term.name: mass, **terms}
+        for term, value in values.items():
+            pname, sign = spec.named_parameter(term)
+            if pname == term:
+                pname = f"{coord}:m" if term == spec.inertia_term.name else f"{coord}:{term}"
+            out[pname] = sign * value
+        if spec.delay is not None and spec.delay.gain is None:
+            out[f"{coord}:gain"] = gain
+    if tau is not None:
+        out["tau"] = tau
+    return out

@@ -59,6 +59,35 @@ def order_figure(table, best: int):
     return fig
 
 
+def coordinates_figure(time, measured: dict, simulated: dict, title: str = "free-run simulation of the test experiment"):
+    """Measured and simulated signals, one panel per coordinate."""
+    coords = list(simulated)
+    fig, axes = plt.subplots(len(coords), 1, figsize=(8, 2.6 * len(coords)), sharex=True, squeeze=False)
+    for ax, c in zip(axes[:, 0], coords):
+        ax.plot(time, measured[c], "k", lw=0.8, label="measured")
+        ax.plot(time, simulated[c], "r", lw=1.0, label="identified model")
+        ax.set_ylabel(c)
+    axes[0, 0].legend()
+    axes[0, 0].set_title(title)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.tight_layout()
+    return fig
+
+
+def delay_profile_figure(taus, values, tau: float, interval=None):
+    """The delay profile: the least-squares optimal value against the delay."""
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.semilogy(taus, values, "k.-")
+    ax.axvline(tau, color="r", ls="--", lw=1, label=f"tau = {tau:.4g}")
+    if interval is not None:
+        ax.axvspan(*interval, color="r", alpha=0.15, label="95 % interval")
+    ax.set_xlabel("delay tau [s]")
+    ax.set_ylabel("equation-error MSE")
+    ax.legend()
+    fig.tight_layout()
+    return fig
+
+
 def refinement_figure(labels, series: dict):
     """Errors before and after each added effect: ``labels`` (start, then each effect) and
     named error series of the same length."""

@@ -102,12 +102,14 @@ class Equation:
 
 @dataclass(frozen=True)
 class CoupledSystem:
-    """Several equations sharing one input and one delayed coordinate."""
+    """Several equations sharing one delayed coordinate (its position, or with
+    ``derivative = 1`` its velocity, is fed back)."""
 
     equations: tuple[Equation, ...]
     delayed: str
     tau: float
     history: str = "zero"
+    derivative: int = 0
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Coefficients ``(T, 1)``, inertias and delay gains ``(C, 1)``: a batch of one for
@@ -147,21 +149,24 @@ def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndar
     return xs, vs
 
 
-def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force, x0: dict, v0: dict) -> tuple[dict, dict]:
+def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | list[Force], x0: dict,
+                     v0: dict) -> tuple[dict, dict]:
     """Positions and velocities of every coordinate at the sample ``time``.  ``force`` is
-    the shared input (a function of time or samples on ``time``), scaled by each
-    equation's ``input_gain``."""
+    the shared input (a function of time or samples on ``time``) or a list of one input
+    per equation, scaled by each equation's ``input_gain``."""
     t = np.asarray(time, float)
     coords = [eq.coordinate for eq in system.equations]
     gains = np.array([eq.input_gain for eq in system.equations])
+    inputs = force if isinstance(force, list) else [force] * len(coords)
 
     def forces(fine: np.ndarray, h: float) -> np.ndarray:
-        return (half_steps(force, t, h, fine.size // 2)[:, None] * gains[None, :])[:, :, None]
+        each = np.column_stack([half_steps(f, t, h, fine.size // 2) for f in inputs])
+        return (each * gains[None, :])[:, :, None]
 
     coefs, mass, delay_gain = system.arrays()
     X, V = integrate(t, forces, coords, [eq.terms for eq in system.equations], coefs, mass, delay_gain,
                      np.array([system.tau]), np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]),
-                     _delayed_index(system), 0, system.history)
+                     _delayed_index(system), system.derivative, system.history)
     return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
 
 
@@ -178,7 +183,7 @@ def integrate_coupled(system: CoupledSystem, t: np.ndarray, forces: np.ndarray, 
     coords = [eq.coordinate for eq in system.equations]
     return integrate(t, lambda fine, step: np.asarray(forces, float)[:, :, None], coords,
                      [eq.terms for eq in system.equations], coefs, mass, delay_gain, np.asarray(tau, float), x0, v0,
-                     _delayed_index(system), 0, system.history)
+                     _delayed_index(system), system.derivative, system.history)
 
 
 def _delayed_index(system: CoupledSystem) -> int:

@@ -3,7 +3,9 @@
 import numpy as np
 import pytest
 
-from cvxid.identify.joint import identify_joint
+from cvxid.identify.system import identify_system
+from cvxid.model.system import SystemSpec
+from cvxid.regression.builder import SystemBuilder
 from cvxid.tools.flexible_joint import (
     flexible_joint,
     flexible_joint_experiment,
@@ -27,8 +29,9 @@ def test_simulated_joint_satisfies_its_equations():
 def test_joint_identification_recovers_delay_and_stiffness_noise_free():
     system, truth = flexible_joint(coulomb=0.0)
     e = flexible_joint_experiment(system, truth, "sine", duration=20.0)
-    result = identify_joint(flexible_joint_specs(truth["gain"]), e, ties=[("alpha:theta'", "theta:theta'", -1.0)],
-                              velocity="measured")
+    specs = flexible_joint_specs(truth["gain"])
+    system = SystemSpec(specs, ties=(("alpha:theta'", "theta:theta'", -1.0),))
+    result = identify_system(system, SystemBuilder(specs, e, velocity="measured"))
     theta, alpha = result.models["theta"].coefficients, result.models["alpha"].coefficients
     assert result.tau == pytest.approx(truth["tau"], rel=5e-3)
     assert -theta["alpha"] == pytest.approx(truth["k_s"], rel=5e-3)

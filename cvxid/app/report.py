@@ -8,9 +8,8 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from cvxid.diagnose.diagnosis import compare
 from cvxid.errors import CvxidError
-from cvxid.plots import path_figure
+from cvxid.plots import coordinates_figure, delay_profile_figure, path_figure
 
 
 def plain(value):
@@ -42,28 +41,27 @@ def prepare_folder(out) -> Path:
 
 
 def write_report(result, out) -> Path:
-    """Write ``result.json``, ``report.md``, ``model.json`` (the identified model, for
-    :meth:`IdentifiedModel.load`) and the figures (``path``, ``test_fit`` and, when the run
-    made them, ``diagnosis``, ``refinement``, ``orders``) into ``out``."""
-    if hasattr(result, "write"):  # a coupled run writes its own report
-        return result.write(out)
+    """Write ``result.json``, ``report.md``, ``model.json`` (the identified system, for
+    :meth:`~cvxid.identified.IdentifiedSystem.load`; one equation also reads with
+    :meth:`~cvxid.identified.IdentifiedModel.load`) and the figures (``test_fit``, and when
+    the run made them ``path``, ``delay_profile``, ``diagnosis``, ``refinement``,
+    ``orders``) into ``out``."""
     out = prepare_folder(out)
     data = result.to_dict()
+    system = result.system
     plotters = {
-        "path": (lambda: path_figure(result.path, result.model.lam)) if result.path is not None else None,
+        "path": (lambda: path_figure(result.path, result.lam)) if result.path is not None else None,
+        "delay_profile": (lambda: delay_profile_figure(*system.profile, system.tau, system.info.get("tau_interval")))
+        if system.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
         "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
-    if result.test is not None:
-        cmp = compare(result.model, result.test)
-        data["test_fit_percent"] = cmp.fit_percent
-        data["test_k_step_fit_percent"] = cmp.k_step_fit_percent
-        if cmp.free_run is not None:
-            plotters["test_fit"] = cmp.plot
-        else:
-            result.warnings.append(cmp.message)
-            data["warnings"] = result.warnings
+    if result.test is not None and result.coupled and np.isfinite(result.test_fit["fit_percent"]).all():
+        plotters["test_fit"] = lambda: coordinates_figure(
+            result.test.time, {c: result.test.output(c) for c in system.coordinates}, system.simulate(result.test))
+    elif result.test is not None and not result.coupled and result.test_fit.free_run is not None:
+        plotters["test_fit"] = result.test_fit.plot
     figures = {}
     for name, plot in plotters.items():
         if plot is not None:
@@ -73,10 +71,10 @@ def write_report(result, out) -> Path:
             figures[name] = f"{name}.png"
     data["figures"] = figures
     try:
-        result.model.save(out / "model.json")  # reload with IdentifiedModel.load
+        system.save(out / "model.json")  # reload with IdentifiedSystem.load (or IdentifiedModel.load)
         data["model_file"] = "model.json"
     except CvxidError as exc:  # user-defined Python terms cannot be written
-        result.warnings.append(str(exc))
+        data["warnings"] = data["warnings"] + [f"model.json not written: {exc}"]
     (out / "result.json").write_text(json.dumps(plain(data), indent=2, allow_nan=False))
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]
     md += [f"![{k}]({v})" for k, v in figures.items()]

@@ -1,176 +1,52 @@
-"""The main job: a problem spec in, an identified model and its figures out.
+r"""The main job: a problem spec in, an identified system and its figures out.
 
-``run(spec)`` loads (or simulates) the experiments, builds the regressions, sweeps the
-:math:`\\lambda` path on the training data, selects the solution with the least test error
-and returns a :class:`RunResult` that prints, tabulates and serialises itself.
+``run(spec)`` identifies a system of :math:`N \ge 1` equations (one ``[model]``, or
+``[[model.equation]]`` tables with a shared delay and ties) the same way whatever
+:math:`N`: load or simulate the experiments; transform them once
+(:class:`~cvxid.regression.builder.SystemBuilder`); for an exact delay, profile it on the
+whole library; (optionally, one equation) search the library order; sweep :math:`\lambda`
+and select on the test experiment; (optionally) bootstrap; for an exact delay, profile it
+again on the selected support; (optionally) the Huber loss; (optionally) diagnose and add
+the missing effects; (optionally) polish by output error.  It returns a
+:class:`~cvxid.app.result.RunResult`.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 from pathlib import Path as FilePath
 
 import numpy as np
 import pandas as pd
 
-from cvxid.app.report import records
+from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
-from cvxid.diagnose.diagnosis import Diagnosis, Refinement, diagnose, refine
+from cvxid.diagnose.diagnosis import compare, diagnose, refine
+from cvxid.diagnose.joint import refine_joint
 from cvxid.errors import CvxidError, CvxidWarning
-from cvxid.identified import IdentifiedModel
-from cvxid.identify.bootstrap import Bootstrap, BootstrapSettings, bootstrap
+from cvxid.identified import IdentifiedSystem
+from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import PolishResult, polish
+from cvxid.identify.output_error import polish
 from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
-from cvxid.identify.profile import profile_delay
-from cvxid.identify.stepwise import Stepwise, stepwise_output_error
-from cvxid.regression.algebraic import AlgebraicOrders
-from cvxid.regression.builder import RegressionBuilder, build_regression
+from cvxid.identify.stepwise import stepwise_output_error
+from cvxid.identify.system import fit_support, identified
+from cvxid.model.system import SystemSpec
+from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
 
-RESULT_SCHEMA = 1
 
-
-@dataclass
-class RunResult:
-    """Everything one run produced."""
-
-    spec: ProblemSpec
-    model: IdentifiedModel
-    path: Path | None
-    problem: Problem
-    train: Experiment
-    test: Experiment | None
-    test_mse: float
-    test_nmse: float
-    seconds: float
-    warnings: list[str] = field(default_factory=list)
-    bootstrap: Bootstrap | None = None
-    order_search: OrderSearch | None = None
-    tau: dict | None = None
-    polish: PolishResult | None = None
-    diagnosis: Diagnosis | None = None
-    refinement: Refinement | None = None
-    velocity_scores: dict | None = None
-    stepwise: Stepwise | None = None
-
-    def table(self) -> pd.DataFrame:
-        truth = self.spec.truth.physical if self.spec.truth else None
-        return self.model.table(truth)
-
-    def to_dict(self) -> dict:
-        phys = self.model.physical
-        return {
-            "schema": RESULT_SCHEMA,
-            "name": self.spec.name,
-            "equation": self.model.equation(),
-            "equation_latex": self.model.equation_latex(),
-            "regression_equation": self.model.regression_equation(),
-            "coefficients": {k: float(v) for k, v in self.model.coefficients.items()},
-            "physical": {k: float(v) for k, v in phys.items()},
-            "truth": self.spec.truth.physical if self.spec.truth else None,
-            "support": self.model.support,
-            "test_mse": self.test_mse,
-            "test_nmse": self.test_nmse,
-            "lambda": self.model.lam,
-            "estimator": self.spec.fit.estimator,
-            "selection": self.spec.fit.selection,
-            "velocity": self.spec.fit.velocity,
-            "velocity_scores": self.velocity_scores,
-            "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
-            "solver": self.problem.solver,
-            "seconds": self.seconds,
-            "warnings": self.warnings,
-            "tau": self.tau,
-            "diagnosis": None if self.diagnosis is None else {
-                "ranking": self.diagnosis.records(),
-                "groups": self.diagnosis.groups,
-            },
-            "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
-            "polish": None if self.polish is None else {
-                "method": "output_error",
-                "rms_before": self.polish.rms_before,
-                "rms_after": self.polish.rms_after,
-                "standard_errors": self.polish.standard_errors,
-                "seconds": self.polish.seconds,
-            },
-            "bootstrap": None if self.bootstrap is None else {
-                "samples": len(self.bootstrap.coefficients),
-                "terms": records(self.bootstrap.summary()),
-                "physical": records(self.bootstrap.physical_summary()),
-            },
-            "stepwise": None if self.stepwise is None else {
-                "history": self.stepwise.history.to_dict(orient="records"),
-                "noise": self.stepwise.noise,
-                "seconds": self.stepwise.seconds,
-            },
-            "order_search": None if self.order_search is None else {
-                "best_order": self.order_search.best_order,
-                "table": records(self.order_search.table),
-            },
-        }
-
-    def summary(self) -> str:
-        frame = self.table()
-        if self.bootstrap is not None:
-            spread = self.bootstrap.physical_summary()
-            frame["boot std"] = spread["std"].reindex(frame.index)
-        lines = [
-            f"cvxid: {self.spec.name}",
-            f"  identified: {self.model.equation()}",
-            f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
-            f"  lambda = {self.model.lam:.3g} ({self.spec.fit.estimator}, solver {self.problem.solver}, "
-            f"velocity {self.spec.fit.velocity})",
-            (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
-             else "  test MSE: no test experiment ([data.test]) to score on"),
-            *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
-               + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
-                  if self.tau["interval"] else ")")] if self.tau else []),
-            *([f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
-               f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s"] if self.polish else []),
-            "",
-            frame.to_string(float_format=lambda v: f"{v:.4f}"),
-            "",
-            f"  {self.seconds:.1f} s",
-        ]
-        if self.order_search is not None:
-            lines[-1:-1] = [repr(self.order_search), ""]
-        if self.stepwise is not None:
-            lines[-1:-1] = [repr(self.stepwise), ""]
-        if self.diagnosis is not None:
-            lines[-1:-1] = [repr(self.diagnosis), ""]
-        if self.refinement is not None:
-            lines[-1:-1] = [repr(self.refinement), ""]
-        lines += [f"  warning: {w}" for w in self.warnings]
-        return "\n".join(lines)
-
-    def __repr__(self) -> str:
-        return self.summary()
-
-
-def run(spec: ProblemSpec | str | FilePath):
-    """Identify the model of a problem spec (a :class:`ProblemSpec` or a path to one).
-
-    Steps: load or simulate the experiments; for an exact delay, profile the delay on the
-    whole library; (optionally) search the library order; sweep lambda and select on the
-    test experiment; (optionally) bootstrap; for an exact delay, profile the delay again on
-    the selected support; (optionally) polish by output error.  A coupled spec
-    (``[[model.equation]]``) runs :func:`cvxid.app.joint_run.run_joint` and returns its
-    :class:`~cvxid.app.joint_run.JointRunResult`.
-    """
-    if not isinstance(spec, ProblemSpec):
-        spec = load_problem(spec) if isinstance(spec, (str, FilePath)) else spec
-    if not isinstance(spec, ProblemSpec):  # a coupled spec ([[model.equation]])
-        from cvxid.app.joint_run import run_joint
-
-        return run_joint(spec)
+def run(spec) -> RunResult:
+    """Identify the system of a problem spec (a parsed spec or a path to one)."""
+    if isinstance(spec, (str, FilePath)):
+        spec = load_problem(spec)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always", CvxidWarning)
@@ -178,12 +54,13 @@ def run(spec: ProblemSpec | str | FilePath):
             result = _best_velocity(spec)
         else:
             result = _identify(spec)
+        _compare(result)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
     result.seconds = time.perf_counter() - start
     return result
 
 
-def _best_velocity(spec: ProblemSpec) -> RunResult:
+def _best_velocity(spec) -> RunResult:
     """``velocity = "auto"``: identify with each estimator, keep the least test error."""
     if "test" not in spec.data:
         raise CvxidError('velocity = "auto" chooses by the test error: add [data.test]')
@@ -197,34 +74,37 @@ def _best_velocity(spec: ProblemSpec) -> RunResult:
     return best
 
 
-def _identify(spec: ProblemSpec) -> RunResult:
+def _identify(spec) -> RunResult:
     fit = spec.fit
+    system = spec.system
+    one = system.single is not None
     if fit.estimator == "stepwise_oe" and (fit.orders or fit.bootstrap or spec.diagnose is not None
                                            or fit.loss != "squared"):
         raise CvxidError('estimator = "stepwise_oe" selects the terms itself: remove [fit] orders, bootstrap and '
                          'loss, and [diagnose]')
+    if not one and fit.estimator == "stepwise_oe":
+        raise CvxidError('estimator = "stepwise_oe" is for one equation; a coupled spec selects with "lasso", '
+                         '"stlsq" or "lstsq"')
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
-    model_spec = spec.model
     if fit.orders:
-        model_spec = replace(spec.model, library=spec.library(max(fit.orders)))
-    exact = model_spec.delay is not None and model_spec.delay.exact
-    family = RegressionBuilder(model_spec, train, velocity, fit.window)
-    test_family = RegressionBuilder(model_spec, test, velocity, fit.window) if test else None
+        system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
+    rows = SystemBuilder(system.equations, train, velocity, fit.window)
+    test_rows = SystemBuilder(system.equations, test, velocity, fit.window) if test else None
     if fit.estimator == "stepwise_oe":
-        return _stepwise(spec, family, test_family, train, test)
-    whole = profile_delay(family, nonnegative=model_spec.nonnegative) if exact else None
-    tau = whole.estimate if exact else None
-    regression = family.at(tau)
-    validation = test_family.at(tau) if test else None
+        return _stepwise(spec, rows, test_rows, train, test)
+    whole = fit_support(system, rows, solver=fit.solver) if system.exact else None
+    tau = whole.tau if whole else None
+    regression = rows.at(tau, system.equations)
+    validation = test_rows.at(tau, system.equations) if test else None
     search = None
     if fit.orders:
         search = order_search(spec, fit.orders, train=regression, test=validation, boot=fit.bootstrap)
-        model_spec = model_spec.with_library(spec.library(search.best_order))
-        regression = regression.subset(model_spec.column_names)
-        validation = validation.subset(model_spec.column_names)
-    problem = Problem.from_regression(regression, model_spec.nonnegative, fit.solver)
+        system = SystemSpec.of(system.single.with_library(spec.library(search.best_order)))
+        regression = regression.subset(system.column_names)
+        validation = validation.subset(system.column_names)
+    problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
     path = Path.compute(
         problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator, debias=fit.debias
     )
@@ -235,85 +115,132 @@ def _identify(spec: ProblemSpec) -> RunResult:
     if fit.bootstrap:
         ensemble = search.ensembles[search.best_order] if search else bootstrap(
             regression, fit.lambdas, validation.residual if validation else None, fit.bootstrap,
-            model_spec.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection,
+            system.nonnegative, fit.solver, fit.estimator, fit.debias, fit.selection, ties=system.ties,
         )
         coefs = dict(ensemble.mean)  # the paper's estimate (its eq. 18)
         keep = np.array([coefs[n] != 0 for n in problem.names])
-    tau_info = None
-    if exact:
-        same = keep.all() and not fit.orders  # the first profile was of this very problem
-        profile = whole if same else profile_delay(family, support=keep, nonnegative=model_spec.nonnegative,
-                                                   model=model_spec)
-        tau = profile.estimate
-        refit = Problem.from_regression(family.at(tau, model_spec), model_spec.nonnegative, fit.solver).refit(keep)
-        coefs = dict(zip(problem.names, np.where(keep, refit.coefficients, 0.0)))
-        validation = test_family.at(tau, model_spec) if test else None
-        tau_info = profile.as_dict()
+    profile = None
+    if system.exact:
+        same = keep.all() and not fit.orders  # the whole library's profile is this support's
+        refit = fit_support(system, rows, keep, solver=fit.solver, profile=whole.profile if same else None)
+        tau, profile, coefs = refit.tau, refit.profile, refit.coefficients
+        validation = test_rows.at(tau, system.equations) if test else None
     if fit.loss == "huber":
-        robust, _ = huber_refit(family.at(tau, model_spec), keep, model_spec.nonnegative, fit.solver)
+        robust, _ = huber_refit(rows.at(tau, system.equations), keep, system.nonnegative, fit.solver,
+                                ties=system.ties)
         coefs = dict(zip(problem.names, np.where(keep, robust.coefficients, 0.0)))
-    model = IdentifiedModel(model_spec, {n: float(c) for n, c in coefs.items()}, best.lam, tau=tau)
-    if ensemble is not None:
-        ensemble.physical = pd.DataFrame(
-            [model_spec.physical(dict(r), tau) for _, r in ensemble.coefficients.iterrows()]
-        )
-    if model_spec.delay is not None and not exact:
+    lam = 0.0 if fit.estimator == "lstsq" else best.lam  # least squares: no penalty, nothing selected
+    info = {"method": "equation_error", "lambda": lam}
+    if profile is not None:
+        info["tau_interval"] = list(profile.interval)
+    result = identified(system, {n: float(c) for n, c in coefs.items()}, tau, lam, profile, info)
+    tau_info = None if profile is None else profile.as_dict()
+    if ensemble is not None and one:
+        model = result.single
+        ensemble.physical = pd.DataFrame([model.spec.physical(dict(r), tau) for _, r in ensemble.coefficients.iterrows()])
+    if one and system.delay is not None and not system.exact:
         interval = None
         if ensemble is not None:
             taus = ensemble.physical["tau"]
             interval = [float(taus.quantile(0.025)), float(taus.quantile(0.975))]
-        tau_info = {"estimate": model.physical["tau"], "interval": interval, "method": "taylor"}
-    diagnosis = refinement = None
-    if spec.diagnose is not None and test is not None:
-        settings = spec.diagnose
-        refinement = refine(model, train, test, settings.candidates, settings.min_improvement,
-                            settings.max_steps if settings.refine else 0, velocity, fit.window,
-                            builders=(family, test_family))
-        model = refinement.model
-        diagnosis = refinement.diagnoses[0] if refinement.diagnoses else diagnose(
-            model, train, test, settings.candidates, velocity, fit.window, builders=(family, test_family))
-        if refinement.steps and model_spec.delay is not None and model_spec.delay.exact:
-            tau_info = dict(tau_info, estimate=model.tau, interval=None, method="profile (after refinement)")
-        model_spec = model.spec
-        problem = Problem.from_regression(family.at(model.tau, model_spec), model_spec.nonnegative, fit.solver)
-        validation = test_family.at(model.tau, model_spec)
-    polished = None
+        tau_info = {"estimate": result.single.physical["tau"], "interval": interval, "method": "taylor"}
+    if not one and tau_info is not None:
+        tau_info["method"] = "joint profile"
+    out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
+                    float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info,
+                    lam=None if fit.estimator == "lstsq" else best.lam)
+    if spec.diagnose is not None:
+        _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":
-        polished = polish(model, train)
-        model = polished.model
-        if model_spec.delay is not None:
-            tau_info = {
-                "estimate": polished.parameters["tau"],
-                "interval": list(polished.interval("tau")),
-                "method": "output_error",
-            }
-    vector = np.array([model.coefficients[n] for n in problem.names])
-    return RunResult(
-        spec, model, path, problem, train, test,
-        validation.mse(vector) if validation else float("nan"),
-        validation.nmse(vector) if validation else float("nan"),
-        0.0, [], ensemble, search, tau_info, polished, diagnosis, refinement,
-    )
+        _polish(out)
+    _score(out, test_rows)
+    return out
 
 
-def _stepwise(spec: ProblemSpec, family: RegressionBuilder, test_family: RegressionBuilder | None, train: Experiment,
+def _compare(out: RunResult):
+    """The final model against the test experiment, once: free-run (and, for one
+    equation, k-step-ahead) fit; a diverging simulation is a warning of the run."""
+    if out.test is None:
+        return
+    if out.coupled:
+        out.test_fit = out.system.compare(out.test)
+        return
+    out.test_fit = compare(out.model, out.test)
+    if out.test_fit.message:
+        warnings.warn(out.test_fit.message, CvxidWarning, stacklevel=2)
+
+
+def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):
+    """Diagnose → add → refit (one equation: :func:`~cvxid.diagnose.diagnosis.refine`;
+    coupled: :func:`~cvxid.diagnose.joint.refine_joint`), on the run's own transformed data."""
+    settings, window = spec.diagnose, spec.fit.window
+    steps = settings.max_steps if settings.refine else 0
+    if out.test is None:
+        if out.coupled:
+            raise CvxidError("[diagnose] scores effects on the test data: add [data.test]")
+        return
+    if out.coupled:
+        out.refinement = refine_joint(out.system, out.train, out.test, settings.candidates, settings.min_improvement,
+                                      steps, velocity, window, (rows, test_rows))
+        out.system = out.refinement.result
+        out.tau = {"estimate": out.system.tau, "interval": out.system.info.get("tau_interval"),
+                   "method": "joint profile"}
+        return
+    ((label, train_rows),) = rows.builders.items()
+    builders = (train_rows, test_rows.builders[label])
+    model = out.model
+    out.refinement = refine(model, out.train, out.test, settings.candidates, settings.min_improvement, steps,
+                            velocity, window, builders=builders)
+    model = out.refinement.model
+    out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(
+        model, out.train, out.test, settings.candidates, velocity, window, builders=builders)
+    if out.refinement.steps and model.spec.delay is not None and model.spec.delay.exact:
+        out.tau = dict(out.tau, estimate=model.tau, interval=None, method="profile (after refinement)")
+    out.system = IdentifiedSystem.of(model)
+    out.problem = Problem.from_regression(rows.at(model.tau, out.system.specs), model.spec.nonnegative,
+                                          spec.fit.solver)
+
+
+COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, starts=0, final_iterations=10)
+"""A coupled system's polish schedule: one start, a coarser first step (a coupled record
+is long and every coordinate is simulated; measured on the flexible joint)."""
+
+
+def _polish(out: RunResult):
+    """The output-error polish of every coordinate; its delay interval replaces the
+    profile's."""
+    out.polish = polish(out.system, out.train, **(COUPLED_POLISH if out.coupled else {}))
+    out.system = out.polish.system
+    if "tau" in out.polish.parameters:
+        out.tau = {"estimate": out.polish.parameters["tau"], "interval": list(out.polish.interval("tau")),
+                   "method": "output_error"}
+
+
+def _score(out: RunResult, test_rows: SystemBuilder | None):
+    """The test experiment's equation error of the final coefficients."""
+    if test_rows is None:
+        return
+    validation = test_rows.at(out.system.tau, out.system.specs)
+    coefficients = out.system.coefficients
+    vector = np.array([coefficients.get(n, 0.0) for n in validation.names])
+    out.test_mse, out.test_nmse = validation.mse(vector), validation.nmse(vector)
+
+
+def _stepwise(spec: ProblemSpec, rows: SystemBuilder, test_rows: SystemBuilder | None, train: Experiment,
               test: Experiment | None) -> RunResult:
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.identify.stepwise`), the final model polished at the sample step."""
-    fit = spec.fit
+    ((label, family),) = rows.builders.items()
     search = stepwise_output_error(spec.model, family, train)
     model = search.model
-    columns = list(model.spec.column_names)
-    problem = Problem.from_regression(family.at(model.tau).subset(columns), model.spec.nonnegative, fit.solver)
-    vector = np.array([model.coefficients[n] for n in columns])
-    scored = test_family.at(model.tau).subset(columns) if test_family is not None else None
+    system = IdentifiedSystem.of(model)
+    problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)
     estimate = model.tau if model.tau is not None else model.physical.get("tau")
     tau_info = None if spec.model.delay is None else {"estimate": estimate, "interval": None, "method": "output_error"}
-    return RunResult(
-        spec, model, None, problem, train, test,
-        scored.mse(vector) if scored else float("nan"), scored.nmse(vector) if scored else float("nan"),
-        0.0, [], tau=tau_info, stepwise=search,
-    )
+    out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), tau=tau_info,
+                    stepwise=search)
+    _score(out, test_rows)
+    return out
 
 
 def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = None, fraction: float = 0.5,

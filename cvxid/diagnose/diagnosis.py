@@ -30,7 +30,6 @@ from scipy.signal import savgol_filter
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel
-from cvxid.identify.output_error import initial_state
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
 from cvxid.metrics import fit_percent
@@ -38,7 +37,7 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
 from cvxid.model.terms import DelayedSignal, Term
 from cvxid.regression.builder import RegressionBuilder
-from cvxid.regression.velocity import savgol_window
+from cvxid.regression.velocity import initial_state, savgol_window
 from cvxid.simulate import SimulationDiverged, simulate
 
 COLLINEAR = 0.9

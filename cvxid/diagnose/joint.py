@@ -23,15 +23,12 @@ import pandas as pd
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
-from cvxid.identify.joint import (
-    JointRegression,
-    JointResult,
-    identify_joint,
-    joint_test_mse,
-)
+from cvxid.identified import IdentifiedSystem
 from cvxid.identify.problem import Problem
+from cvxid.identify.system import identify_system
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, resolve_term
+from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Term
 from cvxid.regression.builder import SystemBuilder
 
@@ -60,7 +57,7 @@ def _with(specs: dict[str, ModelSpec], terms: Sequence[Term]) -> dict[str, Model
             for label, s in specs.items()}
 
 
-def diagnose_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
+def diagnose_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
                    velocity: str = "savgol", window: float | None = None,
                    builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> pd.DataFrame:
     """The candidates ranked by the test equation error of the joint refit with each one
@@ -69,22 +66,23 @@ def diagnose_joint(result: JointResult, train: Experiment, test: Experiment, can
     specs = result.specs
     terms = candidate_terms(specs, candidates)
     union = _with(specs, list(terms.values()))
-    train_rows, test_rows = builders or (train, test)
-    fitted = JointRegression(union, train_rows, velocity, window, result.ties).at(result.tau)
-    scored = JointRegression(union, test_rows, velocity, window).at(result.tau)
+    train_rows, test_rows = builders or (SystemBuilder(specs, train, velocity, window),
+                                         SystemBuilder(specs, test, velocity, window))
+    fitted = train_rows.at(result.tau, union)
+    scored = test_rows.at(result.tau, union)
     base = [f"{label}:{n}" for label, s in specs.items() for n in s.column_names]
     nonnegative = [f"{label}:{n}" for label, s in specs.items() for n in s.nonnegative]
 
-    def test_mse(names):
+    def score(names):
         problem = Problem.from_regression(fitted.subset(names), nonnegative, ties=result.ties)
         fit = problem.refit(np.ones(problem.k, bool))
         return scored.subset(names).mse(fit.coefficients)
 
-    before = test_mse(base)
+    before = score(base)
     rows = []
     for label, term in terms.items():
         added = [f"{eq}:{term.name}" for eq, s in specs.items() if term.name not in s.column_names]
-        after = test_mse(base + added)
+        after = score(base + added)
         rows.append({"candidate": label, "term": term.name, "meaning": term.meaning, "test_mse": after,
                      "ratio": after / before})
     frame = pd.DataFrame(rows).sort_values("ratio").set_index("candidate")
@@ -92,7 +90,15 @@ def diagnose_joint(result: JointResult, train: Experiment, test: Experiment, can
     return frame
 
 
-def simulation_error(result: JointResult, experiment: Experiment) -> float:
+def equation_mse(result: IdentifiedSystem, rows: SystemBuilder) -> float:
+    """Mean squared equation error of ``result`` on the data of ``rows``, all equations
+    stacked."""
+    regression = rows.at(result.tau, result.specs)
+    coefficients = result.coefficients
+    return regression.mse(np.array([coefficients.get(n, 0.0) for n in regression.names]))
+
+
+def simulation_error(result: IdentifiedSystem, experiment: Experiment) -> float:
     """Mean over coordinates of the free-run RMS error relative to the coordinate's
     standard deviation (inf when the simulation diverges)."""
     table = result.compare(experiment)
@@ -104,7 +110,7 @@ def simulation_error(result: JointResult, experiment: Experiment) -> float:
 class JointRefinement:
     """The diagnose → add → refit loop: its steps, rankings and final result."""
 
-    result: JointResult
+    result: IdentifiedSystem
     steps: list[dict] = field(default_factory=list)
     rankings: list[pd.DataFrame] = field(default_factory=list)
 
@@ -136,7 +142,7 @@ class JointRefinement:
         return "\n".join(lines)
 
 
-def refine_joint(result: JointResult, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
+def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
                  min_improvement: float = 0.2, max_steps: int = 5, velocity: str = "savgol",
                  window: float | None = None,
                  builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> JointRefinement:
@@ -147,7 +153,7 @@ def refine_joint(result: JointResult, train: Experiment, test: Experiment, candi
     out = JointRefinement(result)
     train_rows, test_rows = builders or (SystemBuilder(result.specs, train, velocity, window),
                                          SystemBuilder(result.specs, test, velocity, window))
-    equation_error = joint_test_mse(result, test_rows)
+    equation_error = equation_mse(result, test_rows)
     sim_error = simulation_error(result, test)
     for _ in range(max_steps + 1):
         try:
@@ -160,8 +166,8 @@ def refine_joint(result: JointResult, train: Experiment, test: Experiment, candi
         best = ranking.index[0]
         term = ranking.loc[best, "term"]
         specs = _with(out.result.specs, [resolve_term(term, tuple(out.result.specs))])
-        trial = identify_joint(specs, train_rows, out.result.ties)
-        new_equation = joint_test_mse(trial, test_rows)
+        trial = identify_system(SystemSpec(specs, out.result.ties), train_rows)
+        new_equation = equation_mse(trial, test_rows)
         new_sim = simulation_error(trial, test)
         keep = 1 - min_improvement
         accepted = (ranking["ratio"].iloc[0] <= keep  # the effect itself, at the current delay

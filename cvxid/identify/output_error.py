@@ -1,210 +1,175 @@
-r"""Output-error polish: from the convex estimate to the least simulation error.
+r"""Output-error polish: from the convex estimate to the least simulation error, for
+:math:`N \ge 1` coordinates.
 
-Starting from an identified model and its support, the mass, the coefficients of the
-selected terms, the delay :math:`\tau` (and an unknown gain) and the initial state
-:math:`(x_0, \dot x_0)` are adjusted to minimise
+Starting from an identified system and its support, every equation's inertia, the
+coefficients of its selected terms and an unknown feedback gain, the shared delay
+:math:`\tau` and each experiment's initial state :math:`(q_0, \dot q_0)` of every
+coordinate are adjusted to minimise
 
 .. math::
 
-    \sum_k \big(x_\mathrm{measured}(t_k) - x_\mathrm{simulated}(t_k;\theta)\big)^2
+    \sum_{e,i,k} \big(q_{i,\mathrm{measured}}^{(e)}(t_k)
+        - q_{i,\mathrm{simulated}}^{(e)}(t_k;\theta)\big)^2
 
-with scipy's ``least_squares``.  The equation-error estimate is biased by noise in the
-velocity columns; the simulation error is not, because only :math:`x` is compared.  A
-forward-difference Jacobian needs one simulation per parameter: they run as one batch
-through the vectorised integrator, so a Jacobian costs about one simulation's Python
-overhead.  The simulation uses a step of about ``step`` seconds (a whole number of samples),
-which keeps RK4 accurate while the record is long.  Standard errors come from the
-Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}`.
+with scipy's ``least_squares`` (ties between columns hold: a tied coefficient is a
+multiple of its partner).  The equation-error estimate is biased by noise in the velocity
+columns and by nearly collinear columns; the simulation error is not, because only the
+measured coordinates are compared.  A forward-difference Jacobian needs one simulation per
+parameter: they run as one batch through the compiled integrator, so a Jacobian costs
+about one simulation's Python overhead.  The simulation uses a step of about ``step``
+seconds (a whole number of samples), which keeps RK4 accurate while the record is long.
+Standard errors come from the Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}`.
+
+Parameters are physical (a Taylor delay's shares are written back into its columns).  For
+one equation they are named ``m``, the terms' physical names, ``tau``, ``gain``, ``x0`` and
+``v0``; for several, ``"coordinate:column"``, ``tau``, ``"coordinate:gain"`` and
+``"q0[e]"``, ``"q'0[e]"`` for experiment ``e``.
 """
 
 from __future__ import annotations
 
 import time
 from dataclasses import dataclass, replace
+from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
-from scipy.signal import savgol_filter
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
-from cvxid.identified import IdentifiedModel
-from cvxid.regression.velocity import savgol_window
-from cvxid.simulate import SimulationDiverged, System, simulate
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.regression.velocity import initial_state
+from cvxid.simulate import SimulationDiverged, half_steps, integrate
+
+STARTS = 5
+"""Delays tried as starting points besides the estimate (the simulation error has local
+minima in tau)."""
 
 
 @dataclass(frozen=True)
 class PolishResult:
-    """The polished model, its parameter table and how the fit went."""
+    """The polished system, its parameter table and how the fit went."""
 
-    model: IdentifiedModel
+    system: IdentifiedSystem
     parameters: dict[str, float]
     standard_errors: dict[str, float]
     rms_before: float
     rms_after: float
-    x0: float
-    v0: float
+    initial: tuple[dict[str, tuple[float, float]], ...]  # per experiment: coordinate -> (position, velocity)
     iterations: int
     seconds: float
+
+    @property
+    def model(self) -> IdentifiedModel:
+        """The polished equation (a system of one)."""
+        if self.system.single is None:
+            raise CvxidError("a coupled polish has several models: use .system")
+        return self.system.single
+
+    @property
+    def x0(self) -> float:
+        return next(iter(self.initial[0].values()))[0]
+
+    @property
+    def v0(self) -> float:
+        return next(iter(self.initial[0].values()))[1]
 
     def interval(self, name: str, z: float = 1.96) -> tuple[float, float]:
         value, se = self.parameters[name], self.standard_errors[name]
         return value - z * se, value + z * se
 
 
-STARTS = 5
-"""Delays tried as starting points (the simulation error has local minima in tau)."""
+def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
+    return fitted if isinstance(fitted, IdentifiedSystem) else IdentifiedSystem.of(fitted)
 
 
-def polish(model: IdentifiedModel, experiment: Experiment, coarse_step: float = 1e-3, final: bool = True,
-           max_iterations: int = 200) -> PolishResult:
-    """Output-error polish with several starting delays: each start is fitted on a coarse
-    simulation step, the best is refined at the sample step (unless ``final`` is false)."""
+def _experiments(experiments: Experiment | Sequence[Experiment]) -> list[Experiment]:
+    return [experiments] if isinstance(experiments, Experiment) else list(experiments)
+
+
+def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
+           max_iterations: int = 200, starts: int = STARTS, final_iterations: int = 50) -> PolishResult:
+    """Output-error polish from the estimated delay and ``starts`` more spread over its
+    range: each start is fitted on a simulation step of about ``coarse_step``, the best is
+    refined at the sample step with ``final_iterations`` more (unless ``final`` is false)."""
     start = time.perf_counter()
-    delay = model.spec.delay
-    taus = [model.tau] if model.tau is not None else [model.physical.get("tau")]
-    if delay is not None:
-        taus += list(np.linspace(delay.tau_min, delay.tau_max, STARTS + 2)[1:-1])
+    system, experiments = _system(fitted), _experiments(experiments)
+    delay = next(iter(system.specs.values())).delay
+    first = system.tau if system.tau is not None else system.physical.get("tau")
+    taus = [first] + (list(np.linspace(delay.tau_min, delay.tau_max, starts + 2)[1:-1]) if delay else [])
     taus = [t for t in taus if t is not None] or [None]
     best = None
     for tau in taus:
-        trial = model if tau is None else with_tau(model, tau)
+        trial = system if tau is None else with_tau(system, tau)
         try:
-            fit = output_error(trial, experiment, step=coarse_step, max_iterations=max_iterations)
+            fit = output_error(trial, experiments, step=coarse_step, max_iterations=max_iterations)
         except CvxidError:
             continue
         if best is None or fit.rms_after < best.rms_after:
             best = fit
     if best is None:
         raise CvxidError("the output-error polish failed from every starting delay (diverging simulations)")
+    before = output_rms(system, experiments)
     if not final:
-        return replace(best, rms_before=output_rms(model, experiment), seconds=time.perf_counter() - start)
-    last = output_error(best.model, experiment, best.x0, best.v0, step=experiment.dt, max_iterations=50)
-    return PolishResult(last.model, last.parameters, last.standard_errors, output_rms(model, experiment),
-                        last.rms_after, last.x0, last.v0, last.iterations, time.perf_counter() - start)
+        return replace(best, rms_before=before, seconds=time.perf_counter() - start)
+    last = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
+                        max_iterations=final_iterations)
+    return replace(last, rms_before=before, seconds=time.perf_counter() - start)
 
 
-def output_rms(model: IdentifiedModel, experiment: Experiment) -> float:
-    """Root-mean-square free-run simulation error of ``model`` on ``experiment`` (inf if the
-    simulation diverges)."""
-    y = experiment.output(model.spec.coordinate)
-    x0, v0 = initial_state(experiment.time, y)
-    try:
-        x, _ = model.simulate(experiment, x0, v0)
-    except SimulationDiverged:
-        return float("inf")
-    return float(np.sqrt(np.mean((x - y) ** 2)))
-
-
-def initial_state(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
-    """Position and velocity at the first sample, from a Savitzky–Golay fit whose window
-    is chosen from the noise (a short fixed window lets the noise into the velocity)."""
-    w = savgol_window(y)
-    dt = float(t[1] - t[0])
-    return (float(savgol_filter(y, w, 3, mode="interp")[0]),
-            float(savgol_filter(y, w, 3, deriv=1, delta=dt, mode="interp")[0]))
-
-
-def with_tau(model: IdentifiedModel, tau: float) -> IdentifiedModel:
-    """``model`` with its physical parameters kept and the delay set to ``tau`` (a Taylor
-    model's delay shares rewritten into its columns)."""
-    system = model.system()
-    params = {model.spec.parameter_name(t.name): c for t, c in zip(system.terms, np.atleast_1d(system.coefficients))}
-    params["m"] = float(system.mass)
-    params["tau"] = float(tau)
-    return _updated(model, system, params)
-
-
-def output_error(
-    model: IdentifiedModel,
-    experiment: Experiment,
-    x0: float | None = None,
-    v0: float | None = None,
-    step: float = 1e-3,
-    max_iterations: int = 30,
-) -> PolishResult:
-    """Polish ``model`` on ``experiment`` by output error from its own delay (see the
-    module docstring; :func:`polish` adds several starting delays)."""
-    start = time.perf_counter()
-    spec = model.spec
-    system = model.system()
-    history = system.history
-    coord = spec.coordinate
-    stride = max(1, int(round(step / experiment.dt)))
-    t = experiment.time[::stride]
-    if t.size < 20:
-        raise CvxidError(f"experiment '{experiment.name}' is too short for the output-error polish")
-    y = experiment.output(coord)[::stride]
-    u = experiment.input(spec.input)[::stride]
-    guess = initial_state(t, y)
-    x0 = guess[0] if x0 is None else x0
-    v0 = guess[1] if v0 is None else v0
-    has_delay = spec.delay is not None and system.gain != 0
-    estimate_gain = has_delay and spec.delay.gain is None
-    names = ["m"] if spec.inertia else []
-    names += [spec.parameter_name(term.name) for term in system.terms]
-    theta0 = ([system.mass] if spec.inertia else []) + list(np.atleast_1d(system.coefficients))
-    if has_delay:
-        names.append("tau")
-        theta0.append(float(system.tau))
-    if estimate_gain:
-        names.append("gain")
-        theta0.append(float(system.gain))
-    names += ["x0", "v0"]
-    theta0 = np.array(theta0 + [x0, v0], dtype=float)
-    k = len(system.terms)
-
-    def unpack(thetas: np.ndarray) -> tuple[System, np.ndarray, np.ndarray]:
-        i = 0
-        mass = thetas[:, 0] if spec.inertia else np.full(len(thetas), spec.mass)
-        i += int(spec.inertia)
-        coefs = thetas[:, i : i + k]
-        i += k
-        tau = np.maximum(thetas[:, i], 0.0) if has_delay else 0.0
-        i += int(has_delay)
-        gain = system.gain
-        if estimate_gain:
-            gain = thetas[:, i]
-            i += 1
-        batch = System(system.terms, coefs, np.maximum(mass, 1e-12), coord, gain, tau, system.derivative, history)
-        return batch, thetas[:, i], thetas[:, i + 1]
-
-    def residuals(thetas: np.ndarray) -> np.ndarray:
-        batch, xs, vs = unpack(np.atleast_2d(thetas))
+def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float:
+    """Root-mean-square free-run simulation error of every coordinate on the experiments
+    (from the states estimated at their starts; inf if a simulation diverges)."""
+    system = _system(fitted)
+    errors = []
+    for e in _experiments(experiments):
         try:
-            x, _ = simulate(batch, t, u, xs, vs)
+            sim = system.simulate(e)
         except SimulationDiverged:
-            return np.full((len(t), len(np.atleast_2d(thetas))), 1e6)
-        x = x.reshape(len(t), -1)
-        return x - y[:, None]
+            return float("inf")
+        errors += [sim[c] - e.output(c) for c in system.coordinates]
+    return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
 
+
+def with_tau(fitted: IdentifiedModel | IdentifiedSystem, tau: float):
+    """``fitted`` with its physical parameters kept and the delay set to ``tau`` (a Taylor
+    model's delay shares rewritten into its columns)."""
+    if isinstance(fitted, IdentifiedModel):
+        system = fitted.system()
+        params = {fitted.spec.parameter_name(t.name): c for t, c in zip(system.terms, np.atleast_1d(system.coefficients))}
+        params["m"] = float(system.mass)
+        params["tau"] = float(tau)
+        return _updated(fitted, system, params)
+    models = {label: with_tau(m, tau) for label, m in fitted.models.items()}
+    return replace(fitted, models=models, tau=float(tau) if fitted.tau is not None else None)
+
+
+def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float = 1e-3,
+                 max_iterations: int = 30) -> PolishResult:
+    """Polish ``fitted`` on ``experiments`` by output error from its own delay (see the
+    module docstring; :func:`polish` adds several starting delays).  ``initial``: each
+    experiment's starting states (coordinate → (position, velocity)), estimated from the
+    data by default."""
+    start = time.perf_counter()
+    problem = _Problem(_system(fitted), _experiments(experiments), step, initial)
     cache: dict[bytes, np.ndarray] = {}
 
     def fun(theta):
         key = theta.tobytes()
         if key not in cache:
             cache.clear()
-            cache[key] = residuals(theta[None, :])[:, 0]
+            cache[key] = problem.residuals(theta[None, :])[:, 0]
         return cache[key]
 
     def jac(theta):
         h = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-        thetas = np.vstack([theta, theta + np.diag(h)])
-        r = residuals(thetas)
+        r = problem.residuals(np.vstack([theta, theta + np.diag(h)]))
         cache.clear()
         cache[theta.tobytes()] = r[:, 0]
         return (r[:, 1:] - r[:, :1]) / h
 
-    before = float(np.sqrt(np.mean(fun(theta0) ** 2)))
-    lower = np.full(theta0.size, -np.inf)
-    upper = np.full(theta0.size, np.inf)
-    if spec.inertia:
-        lower[0] = 1e-9
-    if has_delay:
-        i = names.index("tau")
-        lower[i], upper[i] = spec.delay.tau_min, spec.delay.tau_max
-        theta0[i] = np.clip(theta0[i], lower[i], upper[i])
-    sol = least_squares(fun, theta0, jac=jac, bounds=(lower, upper), method="trf", x_scale="jac",
+    before = float(np.sqrt(np.mean(fun(problem.start) ** 2)))
+    sol = least_squares(fun, problem.start, jac=jac, bounds=problem.bounds, method="trf", x_scale="jac",
                         max_nfev=max_iterations)
     theta = sol.x
     r = fun(theta)
@@ -215,14 +180,152 @@ def output_error(
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
         se = np.full(theta.size, np.nan)
-    params = dict(zip(names, map(float, theta)))
-    errors = dict(zip(names, map(float, se)))
-    refined = _updated(model, system, params)
-    return PolishResult(refined, params, errors, before, after, params["x0"], params["v0"], int(sol.nfev),
-                      time.perf_counter() - start)
+    errors = dict(zip(problem.names, map(float, se)))
+    errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
+    return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
+                        problem.initial(theta), int(sol.nfev), time.perf_counter() - start)
 
 
-def _updated(model: IdentifiedModel, system: System, params: dict) -> IdentifiedModel:
+class _Problem:
+    """Parameters ↔ simulations of the system for :func:`output_error`."""
+
+    def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float, initial):
+        self.base, self.experiments = system, experiments
+        self.one = system.single is not None
+        self.stride = max(1, int(round(step / experiments[0].dt)))
+        for e in experiments:
+            if e.time[::self.stride].size < 20:
+                raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
+        self.systems = {label: m.system() for label, m in system.models.items()}
+        self.coordinates = system.coordinates
+        gains = [float(s.gain) for s in self.systems.values()]
+        delay = next(iter(system.specs.values())).delay
+        self.delay = delay if delay is not None and any(gains) else None
+        coefficients = system.coefficients
+        columns = {}  # system column -> parameter slot
+        names, start, lower, gain_names = [], [], [], []
+        for label, model in system.models.items():
+            spec, s = model.spec, self.systems[label]
+            if spec.inertia:
+                columns[system.column(label, spec.inertia_term.name)] = self._name(label, "m", spec.inertia_term.name)
+            for term in s.terms:
+                columns[system.column(label, term.name)] = self._name(label, spec.parameter_name(term.name), term.name)
+            if self.delay is not None and spec.delay.gain is None:
+                columns[system.column(label, spec.delayed_term.name)] = self._name(label, "gain", "gain")
+        self.tied = {columns[a]: (columns[b], f) for a, b, f in system.ties
+                     if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)}
+        for label, model in system.models.items():
+            spec, s = model.spec, self.systems[label]
+            if spec.inertia:
+                names.append(self._name(label, "m", spec.inertia_term.name))
+                start.append(float(s.mass))
+                lower.append(1e-9)
+            for term, c in zip(s.terms, np.atleast_1d(s.coefficients)):
+                names.append(self._name(label, spec.parameter_name(term.name), term.name))
+                start.append(float(c))
+                lower.append(-np.inf)
+            if self.delay is not None and spec.delay.gain is None:
+                gain_names.append(self._name(label, "gain", "gain"))
+        if self.delay is not None:
+            names.append("tau")
+            start.append(float(next(s.tau for s in self.systems.values())))
+            lower.append(self.delay.tau_min)
+            for label, name in zip(system.models, gain_names):
+                names.append(name)
+                start.append(float(self.systems[label].gain))
+                lower.append(-np.inf)
+        for i, e in enumerate(experiments):
+            guess = initial[i] if initial is not None else {
+                c: initial_state(e.time[::self.stride], e.output(c)[::self.stride]) for c in self.coordinates}
+            for c in self.coordinates:
+                names += [self._state(c, i, 0), self._state(c, i, 1)]
+                start += list(guess[c])
+                lower += [-np.inf, -np.inf]
+        keep = [i for i, n in enumerate(names) if n not in self.tied]
+        self.names = [names[i] for i in keep]
+        lower = np.array(lower)[keep]
+        upper = np.full(len(self.names), np.inf)
+        if self.delay is not None:
+            upper[self.names.index("tau")] = self.delay.tau_max
+        self.bounds = (lower, upper)
+        # every start inside its bounds (least_squares refuses one outside)
+        self.start = np.clip(np.array(start, float)[keep], lower, upper)
+
+    def _name(self, label: str, physical: str, column: str) -> str:
+        return physical if self.one else f"{label}:{column}"
+
+    def _state(self, coordinate: str, experiment: int, order: int) -> str:
+        if self.one:
+            return ("x0", "v0")[order] + ("" if experiment == 0 else f"[{experiment}]")
+        return f"{coordinate}{chr(39) * order}0[{experiment}]"
+
+    def values(self, theta: np.ndarray) -> dict[str, float]:
+        return {k: float(v[0]) for k, v in self._values(theta[None, :]).items()}
+
+    def _values(self, thetas: np.ndarray) -> dict[str, np.ndarray]:
+        values = dict(zip(self.names, thetas.T))
+        for a, (b, f) in self.tied.items():
+            values[a] = f * values[b]
+        return values
+
+    def residuals(self, thetas: np.ndarray) -> np.ndarray:
+        values = self._values(thetas)
+        C, B = len(self.coordinates), thetas.shape[0]
+        mass, gain, coefs, terms = np.ones((C, B)), np.zeros((C, B)), [], []
+        for i, (label, model) in enumerate(self.base.models.items()):
+            spec, s = model.spec, self.systems[label]
+            mass[i] = np.maximum(values[self._name(label, "m", spec.inertia_term.name)], 1e-12) if spec.inertia \
+                else spec.mass
+            coefs += [values[self._name(label, spec.parameter_name(t.name), t.name)] for t in s.terms]
+            terms.append(tuple(s.terms))
+            if self.delay is not None:
+                gain[i] = values[self._name(label, "gain", "gain")] if spec.delay.gain is None else s.gain
+        coefs = np.array(coefs, float).reshape(-1, B)
+        tau = np.maximum(values["tau"], 0.0) if self.delay is not None else np.zeros(B)
+        any_system = next(iter(self.systems.values()))
+        delayed = self.coordinates.index(self.delay.coordinate) if self.delay is not None else 0
+        out = []
+        for i, e in enumerate(self.experiments):
+            t = e.time[::self.stride]
+            inputs = [e.input(m.spec.input)[::self.stride] for m in self.base.models.values()]
+            x0 = np.array([values[self._state(c, i, 0)] for c in self.coordinates])
+            v0 = np.array([values[self._state(c, i, 1)] for c in self.coordinates])
+            Y = np.column_stack([e.output(c)[::self.stride] for c in self.coordinates])
+            try:
+                X, _ = integrate(
+                    t, lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None],
+                    self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
+                    any_system.derivative, any_system.history)
+                out.append((X - Y[:, :, None]).reshape(-1, B))
+            except SimulationDiverged:
+                out.append(np.full((Y.size, B), 1e6))
+        return np.vstack(out)
+
+    def initial(self, theta: np.ndarray) -> tuple[dict[str, tuple[float, float]], ...]:
+        values = self.values(theta)
+        return tuple({c: (values[self._state(c, i, 0)], values[self._state(c, i, 1)]) for c in self.coordinates}
+                     for i in range(len(self.experiments)))
+
+    def result(self, theta: np.ndarray) -> IdentifiedSystem:
+        values = self.values(theta)
+        models = {}
+        for label, model in self.base.models.items():
+            spec, s = model.spec, self.systems[label]
+            params = {spec.parameter_name(t.name): values[self._name(label, spec.parameter_name(t.name), t.name)]
+                      for t in s.terms}
+            if spec.inertia:
+                params["m"] = values[self._name(label, "m", spec.inertia_term.name)]
+            if self.delay is not None:
+                params["tau"] = values["tau"]
+                if spec.delay.gain is None:
+                    params["gain"] = values[self._name(label, "gain", "gain")]
+            models[label] = _updated(model, s, params)
+        tau = values["tau"] if self.delay is not None else self.base.tau
+        return replace(self.base, models=models, tau=tau if self.base.tau is not None else None,
+                       info=dict(self.base.info, method="output_error"))
+
+
+def _updated(model: IdentifiedModel, system, params: dict) -> IdentifiedModel:
     """The identified model with the polished physical parameters written back into its
     regression coefficients (the delay's Taylor share re-added where it has one)."""
     spec = model.spec

@@ -172,7 +172,7 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
             fit, rms = chosen, score
             rows.append({"step": len(rows), "action": "add", "term": candidates[best], "rms": rms})
         fit, rms = _backward(pool, fit, rms, current, base, train, step, (1 + tolerance) * sigma, tolerance, rows)
-    final = output_error(fit.model, train, fit.x0, fit.v0, step=train.dt, max_iterations=20)
+    final = output_error(fit.model, train, fit.initial, step=train.dt, max_iterations=20)
     rows.append({"step": len(rows), "action": "polish at the sample step", "term": "", "rms": final.rms_after})
     info = dict(final.model.info, selection="stepwise output error")
     chosen = IdentifiedModel(final.model.spec, final.model.coefficients, 0.0, info, final.model.tau)

@@ -189,8 +189,9 @@ def build_regression(model: ModelSpec, experiments, velocity: str = "savgol", ta
 
 
 class SystemBuilder:
-    """The regressions of several equations (one :class:`RegressionBuilder` each, sharing
-    one delay), stacked into one block regression with columns ``"coordinate:term"``."""
+    r"""The regressions of :math:`N \ge 1` equations (one :class:`RegressionBuilder` each,
+    sharing one delay): for several, one block regression with columns
+    ``"coordinate:term"``; for one, that equation's regression with bare column names."""
 
     def __init__(self, specs: dict[str, ModelSpec], experiments, velocity: str = "savgol",
                  window: float | None = None):
@@ -203,7 +204,10 @@ class SystemBuilder:
         return next(iter(self.specs.values())).delay
 
     def at(self, tau: float | None = None, model: dict[str, ModelSpec] | None = None) -> Regression:
-        """The block regression of ``model`` (equation label → model; the builder's own by
+        """The regression of ``model`` (equation label → model; the builder's own by
         default) at the delay ``tau``."""
         model = self.specs if model is None else model
+        if len(model) == 1:
+            ((label, spec),) = model.items()
+            return self.builders[label].at(tau, spec)
         return Regression.block({label: self.builders[label].at(tau, spec) for label, spec in model.items()})

@@ -139,3 +139,12 @@ def estimate_velocity(y: np.ndarray, t: np.ndarray, method: str, gains: Observer
         f"unknown velocity estimator '{method}'; use one of {', '.join(ESTIMATORS)} "
         "or the name of a measured velocity column"
     )
+
+
+def initial_state(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
+    """Position and velocity at the first sample, from a Savitzky–Golay fit whose window
+    is chosen from the noise (a short fixed window lets the noise into the velocity)."""
+    w = savgol_window(y)
+    dt = float(t[1] - t[0])
+    return (float(savgol_filter(y, w, 3, mode="interp")[0]),
+            float(savgol_filter(y, w, 3, deriv=1, delta=dt, mode="interp")[0]))

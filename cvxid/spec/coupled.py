@@ -15,8 +15,10 @@ from typing import Mapping
 
 from cvxid.data.experiment import Experiment, load
 from cvxid.errors import CvxidError
+from cvxid.identified import system_physical
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import resolve_term
+from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Sign
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.simulate import HISTORIES, CoupledSystem, Equation, simulate_coupled
@@ -73,6 +75,11 @@ class JointProblemSpec:
     def coordinates(self) -> tuple[str, ...]:
         return tuple(self.equations)
 
+    @property
+    def system(self) -> SystemSpec:
+        """The equations and ties as one :class:`~cvxid.model.system.SystemSpec`."""
+        return SystemSpec(self.equations, self.ties)
+
     def experiment(self, which: str) -> Experiment:
         """Load or simulate the ``train`` or ``test`` experiment."""
         if which not in self.data:
@@ -116,9 +123,9 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "stlsq"))
     fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
-    if fit.velocity not in ESTIMATORS + ("measured",):
-        raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)} or "
-                         f"'measured', got '{fit.velocity}'")
+    if fit.velocity not in ESTIMATORS + ("measured", "auto"):
+        raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)}, "
+                         f"'measured' or 'auto', got '{fit.velocity}'")
     data = data_sections(raw)
     truth = _truth(raw, equations) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
@@ -187,28 +194,6 @@ def _ties(model: Table, equations: dict[str, ModelSpec]) -> tuple[tuple[str, str
     return tuple(ties)
 
 
-def joint_physical(specs: dict[str, ModelSpec], coefficients: Mapping[str, Mapping[str, float]], tau: float | None,
-                   extra_terms: Mapping[str, Mapping[str, float]] | None = None) -> dict[str, float]:
-    """Physical parameters of every equation: a name from ``[model.equation.names]`` where
-    one is given (``"-alpha"`` is minus the coefficient), else ``"coordinate:term"``; the
-    inertia ``"coordinate:m"``; the delay ``tau``."""
-    out = {}
-    for coord, spec in specs.items():
-        mass, terms, _, gain = spec.physical_terms(coefficients[coord], tau)
-        terms = dict(terms, **(extra_terms or {}).get(coord, {}))
-        values = {spec.inertia_term.name: mass, **terms}
-        for term, value in values.items():
-            pname, sign = spec.named_parameter(term)
-            if pname == term:
-                pname = f"{coord}:m" if term == spec.inertia_term.name else f"{coord}:{term}"
-            out[pname] = sign * value
-        if spec.delay is not None and spec.delay.gain is None:
-            out[f"{coord}:gain"] = gain
-    if tau is not None:
-        out["tau"] = tau
-    return out
-
-
 def _truth(raw: Table, equations: dict[str, ModelSpec]) -> JointTruth:
     t = _table(raw, "truth", "", {"equation", "delay", "history", "smoothing"})
     tables = t.get("equation")
@@ -257,7 +242,7 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> JointTruth:
     history = _string(t, "history", "truth", "zero", choices=HISTORIES)
     order = {c: i for i, c in enumerate(coords)}
     system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
-    return JointTruth(system, inputs.pop(), joint_physical(equations, coefficients, tau, extra))
+    return JointTruth(system, inputs.pop(), system_physical(equations, coefficients, tau, extra))
 
 
 def _per_coordinate(sim: Table, key: str, where: str, coords: tuple[str, ...]) -> dict[str, float]:

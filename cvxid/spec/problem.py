@@ -22,6 +22,7 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import METHODS, DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library, resolve_term
+from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.simulate import HISTORIES, System, simulate
@@ -124,6 +125,11 @@ class ProblemSpec:
     description: str = ""
     polynomial: tuple[int, bool, tuple[str, ...]] | None = None  # (order, cross, extra) of the library
     diagnose: "DiagnoseSettings | None" = None
+
+    @property
+    def system(self) -> SystemSpec:
+        """The model as a system of one equation."""
+        return SystemSpec.of(self.model)
 
     def library(self, order: int) -> Library:
         """The spec's polynomial library at another order (for the order search)."""

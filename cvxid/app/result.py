@@ -1,0 +1,241 @@
+"""What one run produced: :class:`RunResult`, for a system of :math:`N \\ge 1` equations.
+
+It prints (``summary``), tabulates (``table``: physical parameters beside the truth) and
+serialises itself (``to_dict``: the ``result.json`` schema 1, whose keys for one equation
+and for a coupled system are listed in ``problems/README.md``).  For one equation its
+``model`` is that equation's :class:`~cvxid.identified.IdentifiedModel`; for several,
+``system`` holds them all.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import pandas as pd
+
+from cvxid.app.report import records
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.identify.bootstrap import Bootstrap
+from cvxid.identify.orders import OrderSearch
+from cvxid.identify.output_error import PolishResult
+from cvxid.identify.path import Path
+from cvxid.identify.problem import Problem
+from cvxid.identify.stepwise import Stepwise
+from cvxid.regression.algebraic import AlgebraicOrders
+
+RESULT_SCHEMA = 1
+
+
+@dataclass
+class RunResult:
+    """Everything one run produced."""
+
+    spec: object  # ProblemSpec or JointProblemSpec
+    system: IdentifiedSystem
+    path: Path | None
+    problem: Problem | None
+    train: Experiment
+    test: Experiment | None
+    test_mse: float
+    test_nmse: float
+    seconds: float = 0.0
+    warnings: list[str] = field(default_factory=list)
+    bootstrap: Bootstrap | None = None
+    order_search: OrderSearch | None = None
+    tau: dict | None = None
+    polish: PolishResult | None = None
+    diagnosis: object | None = None  # Diagnosis (one equation)
+    refinement: object | None = None  # Refinement or JointRefinement
+    velocity_scores: dict | None = None
+    stepwise: Stepwise | None = None
+    lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
+    test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
+
+    @property
+    def coupled(self) -> bool:
+        return len(self.system.models) > 1
+
+    @property
+    def model(self) -> IdentifiedModel:
+        """The identified equation (one-equation runs; a coupled run has ``system``)."""
+        if self.coupled:
+            raise CvxidError(f"this run identified {len(self.system.models)} coupled equations: use result.system")
+        return self.system.single
+
+    @property
+    def physical(self) -> dict[str, float]:
+        return self.system.physical
+
+    # ------------------------------------------------------------------ tables
+    def table(self) -> pd.DataFrame:
+        """Physical parameters, beside the truth when the spec has one (and the output-error
+        standard errors of a coupled run)."""
+        truth = self.spec.truth.physical if self.spec.truth else None
+        if not self.coupled:
+            return self.model.table(truth)
+        frame = pd.DataFrame({"estimate": self.physical})
+        if truth is not None:
+            frame["truth"] = pd.Series(truth).reindex(frame.index)
+            frame["error %"] = 100 * (frame["estimate"] / frame["truth"] - 1)
+        if self.polish is not None:
+            se = {self._physical_name(k): v for k, v in self.polish.standard_errors.items()}
+            frame["std error"] = pd.Series(se).reindex(frame.index)
+        return frame
+
+    def _physical_name(self, column: str) -> str:
+        if column == "tau":
+            return "tau"
+        label, _, name = column.partition(":")
+        spec = self.system.specs.get(label)
+        if spec is None:
+            return column
+        pname, _ = spec.named_parameter(name)
+        if pname != name:
+            return pname
+        return f"{label}:m" if name == spec.inertia_term.name else column
+
+    # ------------------------------------------------------------------ JSON
+    def to_dict(self) -> dict:
+        fit = self.spec.fit
+        common = {
+            "schema": RESULT_SCHEMA,
+            "name": self.spec.name,
+            "coefficients": {k: float(v) for k, v in self.system.coefficients.items()},
+            "physical": {k: float(v) for k, v in self.physical.items()},
+            "truth": self.spec.truth.physical if self.spec.truth else None,
+            "test_mse": self.test_mse,
+            "estimator": fit.estimator,
+            "velocity": fit.velocity,
+            "seconds": self.seconds,
+            "warnings": self.warnings,
+            "tau": self.tau,
+            "bootstrap": None if self.bootstrap is None else {
+                "samples": len(self.bootstrap.coefficients),
+                "terms": records(self.bootstrap.summary()),
+                **({"physical": records(self.bootstrap.physical_summary())}
+                   if self.bootstrap.physical is not None else {}),
+            },
+            "polish": None if self.polish is None else {
+                "method": "output_error",
+                "rms_before": self.polish.rms_before,
+                "rms_after": self.polish.rms_after,
+                "standard_errors": self.polish.standard_errors,
+                "seconds": self.polish.seconds,
+            },
+        }
+        return common | (self._coupled_dict() if self.coupled else self._single_dict())
+
+    def _single_fit(self) -> dict:
+        cmp = self.test_fit
+        return {"test_fit_percent": None if cmp is None else cmp.fit_percent,
+                "test_k_step_fit_percent": None if cmp is None else cmp.k_step_fit_percent}
+
+    def _single_dict(self) -> dict:
+        model, fit = self.model, self.spec.fit
+        return {
+            "equation": model.equation(),
+            "equation_latex": model.equation_latex(),
+            "regression_equation": model.regression_equation(),
+            "support": model.support,
+            "test_nmse": self.test_nmse,
+            **self._single_fit(),
+            "lambda": model.lam,
+            "selection": fit.selection,
+            "velocity_scores": self.velocity_scores,
+            "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
+            "solver": self.problem.solver,
+            "diagnosis": None if self.diagnosis is None else {
+                "ranking": self.diagnosis.records(),
+                "groups": self.diagnosis.groups,
+            },
+            "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
+            "stepwise": None if self.stepwise is None else {
+                "history": self.stepwise.history.to_dict(orient="records"),
+                "noise": self.stepwise.noise,
+                "seconds": self.stepwise.seconds,
+            },
+            "order_search": None if self.order_search is None else {
+                "best_order": self.order_search.best_order,
+                "table": records(self.order_search.table),
+            },
+        }
+
+    def _coupled_dict(self) -> dict:
+        cmp = self.test_fit
+        system = self.system
+        return {
+            "coupled": True,
+            "equation": "; ".join(system.equations()),
+            "equations": {label: m.equation() for label, m in system.models.items()},
+            "equation_latex": {label: m.equation_latex() for label, m in system.models.items()},
+            "support": [k for k, v in system.coefficients.items() if v != 0.0],
+            "ties": [{"left": a, "right": b, "factor": f} for a, b, f in system.ties],
+            "test_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["fit_percent"].items()},
+            "lambda": self.lam,
+            "solver": self.spec.fit.solver,
+            "diagnosis": None if not (self.refinement and self.refinement.rankings) else {
+                "ranking": self.refinement.rankings[0].reset_index().to_dict(orient="records"),
+            },
+            "refinement": None if self.refinement is None else self.refinement.steps,
+            "loss": self.spec.fit.loss,
+        }
+
+    # ------------------------------------------------------------------ printing
+    def summary(self) -> str:
+        return self._coupled_summary() if self.coupled else self._single_summary()
+
+    def _single_summary(self) -> str:
+        frame = self.table()
+        if self.bootstrap is not None and self.bootstrap.physical is not None:
+            spread = self.bootstrap.physical_summary()
+            frame["boot std"] = spread["std"].reindex(frame.index)
+        fit = self.spec.fit
+        lines = [
+            f"cvxid: {self.spec.name}",
+            f"  identified: {self.model.equation()}",
+            f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
+            f"  lambda = {self.model.lam:.3g} ({fit.estimator}, solver {self.problem.solver}, "
+            f"velocity {fit.velocity})",
+            (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
+             else "  test MSE: no test experiment ([data.test]) to score on"),
+            *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
+               + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
+                  if self.tau["interval"] else ")")] if self.tau else []),
+            *([f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
+               f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s"] if self.polish else []),
+            "",
+            frame.to_string(float_format=lambda v: f"{v:.4f}"),
+            "",
+        ]
+        for part in (self.order_search, self.stepwise, self.diagnosis, self.refinement):
+            if part is not None:
+                lines += [repr(part), ""]
+        return "\n".join(lines + self._footer())
+
+    def _coupled_summary(self) -> str:
+        system = self.system
+        lines = [f"cvxid: {self.spec.name} ({len(system.models)} coupled equations, identified jointly)"]
+        lines += [f"  {m.equation()}" for m in system.models.values()]
+        lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in system.ties]
+        lines.append(f"  tau = {system.tau:.5g}"
+                     + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
+        if self.test is not None:
+            fits = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["fit_percent"].items())
+            lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits}")
+        else:
+            lines.append("  test: no test experiment ([data.test]) to score on")
+        if self.polish is not None:
+            lines.append(f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
+                         f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s")
+        lines += ["", self.table().to_string(float_format=lambda v: f"{v:.5g}"), ""]
+        if self.refinement is not None:
+            lines += [repr(self.refinement), ""]
+        return "\n".join(lines + self._footer())
+
+    def _footer(self) -> list[str]:
+        return [f"  {self.seconds:.1f} s"] + [f"  warning: {w}" for w in self.warnings]
+
+    def __repr__(self) -> str:
+        return self.summary()
