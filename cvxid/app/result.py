@@ -24,6 +24,7 @@ from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import Stepwise
 from cvxid.regression.algebraic import AlgebraicOrders
+from cvxid.spec.problem import ProblemSpec
 
 RESULT_SCHEMA = 1
 
@@ -32,7 +33,7 @@ RESULT_SCHEMA = 1
 class RunResult:
     """Everything one run produced."""
 
-    spec: object  # ProblemSpec or JointProblemSpec
+    spec: ProblemSpec
     system: IdentifiedSystem
     path: Path | None
     problem: Problem | None

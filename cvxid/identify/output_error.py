@@ -29,6 +29,7 @@ one equation they are named ``m``, the terms' physical names, ``tau``, ``gain``,
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass, replace
 from typing import Sequence
 
@@ -36,7 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from cvxid.data.experiment import Experiment
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import SimulationDiverged, half_steps, integrate
@@ -248,8 +249,14 @@ class _Problem:
         if self.delay is not None:
             upper[self.names.index("tau")] = self.delay.tau_max
         self.bounds = (lower, upper)
-        # every start inside its bounds (least_squares refuses one outside)
-        self.start = np.clip(np.array(start, float)[keep], lower, upper)
+        # every start inside its bounds (least_squares refuses one outside), and said so
+        wanted = np.array(start, float)[keep]
+        self.start = np.clip(wanted, lower, upper)
+        moved = [f"{n} = {w:.4g} (set to {s:.4g})" for n, w, s in zip(self.names, wanted, self.start) if w != s]
+        if moved:
+            warnings.warn("the output-error polish started outside its bounds: " + ", ".join(moved)
+                          + "; the equation-error estimate it starts from is far off (check the model and the data)",
+                          CvxidWarning, stacklevel=3)
 
     def _name(self, label: str, physical: str, column: str) -> str:
         return physical if self.one else f"{label}:{column}"

@@ -9,11 +9,10 @@ Like every spec it is checked key by key and never executed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
-from cvxid.data.experiment import Experiment, load
 from cvxid.errors import CvxidError
 from cvxid.identified import system_physical
 from cvxid.model.equation import ModelSpec
@@ -21,22 +20,21 @@ from cvxid.model.library import resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Sign
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.simulate import HISTORIES, CoupledSystem, Equation, simulate_coupled
+from cvxid.simulate import HISTORIES, CoupledSystem, Equation
 from cvxid.spec.problem import (
-    SIM_KEYS,
     DiagnoseSettings,
-    FitSettings,
+    ProblemSpec,
     Table,
+    Truth,
     _bool,
     _fit,
     _model,
-    _names,
     _number,
     _string,
     _strings,
     _table,
     data_sections,
-    simulation_setup,
+    ties_of,
 )
 
 JOINT_TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
@@ -47,79 +45,19 @@ JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selec
                   "bootstrap", "n_jobs", "loss"}
 
 
-@dataclass(frozen=True)
-class JointTruth:
-    """The simulated coupled system and its physical parameters (for reports)."""
-
-    system: CoupledSystem
-    input: str
-    physical: dict[str, float]
-
-
-@dataclass(frozen=True)
-class JointProblemSpec:
-    """A parsed coupled spec: the equations' models (by coordinate), ties, fit settings,
-    data descriptions and the truth."""
-
-    name: str
-    folder: Path
-    equations: dict[str, ModelSpec]
-    ties: tuple[tuple[str, str, float], ...]
-    fit: FitSettings
-    data: dict[str, dict]
-    truth: JointTruth | None
-    description: str = ""
-    diagnose: DiagnoseSettings | None = None
-
-    @property
-    def coordinates(self) -> tuple[str, ...]:
-        return tuple(self.equations)
-
-    @property
-    def system(self) -> SystemSpec:
-        """The equations and ties as one :class:`~cvxid.model.system.SystemSpec`."""
-        return SystemSpec(self.equations, self.ties)
-
-    def experiment(self, which: str) -> Experiment:
-        """Load or simulate the ``train`` or ``test`` experiment."""
-        if which not in self.data:
-            raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
-        table = self.data[which]
-        if "simulate" in table:
-            return _simulated(self, which, _table(table, "simulate", f"data.{which}", SIM_KEYS))
-        where = f"data.{which}"
-        inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
-        velocity = table.get("velocity")
-        return load(
-            self.folder / _string(table, "file", where),
-            time=_string(table, "time", where, "t"),
-            outputs=_names(table.get("output", {c: c for c in self.coordinates}), self.coordinates[0], where, "output"),
-            inputs=_names(table.get("input", {i: i for i in inputs}), inputs[0], where, "input"),
-            velocities=_names(velocity, self.coordinates[0], where, "velocity") if velocity else None,
-            name=which,
-            gaps=_bool(table, "gaps", where, False),
-        )
-
-    def __repr__(self) -> str:
-        lines = [f"JointProblemSpec '{self.name}' ({self.folder}): {len(self.equations)} coupled equations"]
-        lines += [f"  {s!r}".replace("\n", "\n  ") for s in self.equations.values()]
-        lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in self.ties]
-        return "\n".join(lines)
-
-
 def is_joint(raw: Table) -> bool:
     model = raw.get("model")
     return isinstance(model, Mapping) and "equation" in model
 
 
-def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem") -> JointProblemSpec:
+def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
     unknown = set(raw) - JOINT_TOP_KEYS
     if unknown:
         raise CvxidError(f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: "
                          f"{', '.join(sorted(JOINT_TOP_KEYS))}")
     model = _table(raw, "model", "", JOINT_MODEL_KEYS, required=True)
     equations = _equations(model)
-    ties = _ties(model, equations)
+    ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "stlsq"))
     fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
@@ -139,8 +77,8 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
                                     _number(d, "min_improvement", "diagnose", 0.2, positive=True),
                                     _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
-    return JointProblemSpec(_string(raw, "name", "", default_name), folder, equations, ties, fit, data, truth,
-                            str(raw.get("description", "")), diagnose)
+    return ProblemSpec(_string(raw, "name", "", default_name), folder, SystemSpec(equations, ties), fit, data, truth,
+                       str(raw.get("description", "")), None, diagnose)
 
 
 def _equations(model: Table) -> dict[str, ModelSpec]:
@@ -176,25 +114,7 @@ def _equations(model: Table) -> dict[str, ModelSpec]:
     return equations
 
 
-def _ties(model: Table, equations: dict[str, ModelSpec]) -> tuple[tuple[str, str, float], ...]:
-    tables = model.get("tie", [])
-    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
-        raise CvxidError("spec: ties are [[model.tie]] tables with left, right and factor")
-    columns = {f"{c}:{n}" for c, s in equations.items() for n in s.column_names}
-    ties = []
-    for i, t in enumerate(tables):
-        where = f"model.tie[{i}]"
-        t = _table({f"tie[{i}]": t}, f"tie[{i}]", "model", {"left", "right", "factor"})
-        left, right = _string(t, "left", where), _string(t, "right", where)
-        for side in (left, right):
-            if side not in columns:
-                raise CvxidError(f"spec: [{where}] '{side}' is not a column; columns are written "
-                                 f"'equation:term', one of: {', '.join(sorted(columns))}")
-        ties.append((left, right, float(_number(t, "factor", where, 1.0))))
-    return tuple(ties)
-
-
-def _truth(raw: Table, equations: dict[str, ModelSpec]) -> JointTruth:
+def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
     t = _table(raw, "truth", "", {"equation", "delay", "history", "smoothing"})
     tables = t.get("equation")
     if not isinstance(tables, list) or not all(isinstance(e, Mapping) for e in tables):
@@ -242,25 +162,4 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> JointTruth:
     history = _string(t, "history", "truth", "zero", choices=HISTORIES)
     order = {c: i for i, c in enumerate(coords)}
     system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
-    return JointTruth(system, inputs.pop(), system_physical(equations, coefficients, tau, extra))
-
-
-def _per_coordinate(sim: Table, key: str, where: str, coords: tuple[str, ...]) -> dict[str, float]:
-    value = sim.get(key, 0.0)
-    if isinstance(value, Mapping):
-        unknown = set(value) - set(coords)
-        if unknown:
-            raise CvxidError(f"spec: [{where}] {key} names unknown coordinate(s) {', '.join(sorted(unknown))}")
-        return {c: float(_number(value, c, f"{where}.{key}", 0.0)) for c in coords}
-    return {c: float(_number(sim, key, where, 0.0)) for c in coords}
-
-
-def _simulated(spec: JointProblemSpec, which: str, sim: Table) -> Experiment:
-    where = f"data.{which}.simulate"
-    t, force, sx, sf, rng = simulation_setup(sim, where)
-    coords = spec.coordinates
-    x, v = simulate_coupled(spec.truth.system, t, force, _per_coordinate(sim, "x0", where, coords),
-                            _per_coordinate(sim, "v0", where, coords))
-    outputs = {c: x[c] + sx * rng.standard_normal(t.size) for c in coords}
-    return Experiment(t, outputs, {spec.truth.input: force(t) + sf * rng.standard_normal(t.size)}, name=which,
-                      velocities=v)
+    return Truth(system, inputs.pop(), system_physical(equations, coefficients, tau, extra))

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Mapping
 
 from cvxid.errors import CvxidError
-from cvxid.spec.coupled import JointProblemSpec, is_joint, parse_joint_problem
+from cvxid.spec.coupled import is_joint, parse_joint_problem
 from cvxid.spec.problem import ProblemSpec, Table, parse_single_problem
 
 if sys.version_info >= (3, 11):
@@ -21,7 +21,7 @@ else:  # pragma: no cover
     import tomli as tomllib
 
 
-def load_problem(path) -> ProblemSpec | JointProblemSpec:
+def load_problem(path) -> ProblemSpec:
     """Read and check a TOML problem spec."""
     path = Path(path)
     if not path.is_file():
@@ -33,9 +33,9 @@ def load_problem(path) -> ProblemSpec | JointProblemSpec:
     return parse_problem(raw, path.parent.resolve(), default_name=path.stem)
 
 
-def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec | JointProblemSpec:
-    """A :class:`~cvxid.spec.problem.ProblemSpec` for one equation (``[model]`` or a single
-    ``[[model.equation]]``), a :class:`~cvxid.spec.coupled.JointProblemSpec` for several."""
+def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
+    """The :class:`~cvxid.spec.problem.ProblemSpec` of one equation (``[model]`` or a
+    single ``[[model.equation]]``) or of several."""
     if not is_joint(raw):
         return parse_single_problem(raw, folder, default_name)
     equations = raw["model"].get("equation")
@@ -50,13 +50,14 @@ def single_equation_form(raw: Table) -> dict:
     truth's one ``[[truth.equation]]`` and per-coordinate initial states."""
     out = dict(raw)
     model = dict(raw["model"])
-    if "tie" in model:
-        raise CvxidError("spec: [[model.tie]] in a one-equation spec: ties within one equation are not supported "
-                         "yet; remove the tie or write the model with the tied terms combined")
     (equation,) = model.pop("equation")
     if not isinstance(equation, Mapping):
         raise CvxidError("spec: [[model.equation]] must be a table")
     single = {k: v for k, v in equation.items() if k != "delay_gain"}
+    if "tie" in model:  # columns of one equation print bare: "x:x'" is "x'"
+        prefix = f"{single.get('coordinate', 'x')}:"
+        single["tie"] = [{k: v.removeprefix(prefix) if k in ("left", "right") and isinstance(v, str) else v
+                          for k, v in t.items()} if isinstance(t, Mapping) else t for t in model.pop("tie")]
     if "delay" in model:
         delay = dict(model.pop("delay"))
         if not isinstance(delay, Mapping):

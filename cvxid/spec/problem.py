@@ -25,7 +25,7 @@ from cvxid.model.library import Library, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.simulate import HISTORIES, System, simulate
+from cvxid.simulate import HISTORIES, CoupledSystem, Equation, simulate_coupled
 
 Table = Mapping[str, Any]
 
@@ -91,9 +91,11 @@ def _bool(table: Table, key: str, where: str, default: bool) -> bool:
 # ---------------------------------------------------------------------- the spec
 @dataclass(frozen=True)
 class Truth:
-    """The true system of a simulated problem (also the reference in reports)."""
+    """The true system of a simulated problem (also the reference in reports): its
+    equations, the input that drives them and its physical parameters."""
 
-    system: System
+    system: CoupledSystem
+    input: str
     physical: dict[str, float]
 
 
@@ -114,11 +116,12 @@ class FitSettings:
 
 @dataclass(frozen=True)
 class ProblemSpec:
-    """A parsed problem: name, model, fit settings, data descriptions and the truth."""
+    """A parsed problem: name, the system of N >= 1 equations, fit settings, data
+    descriptions and the truth."""
 
     name: str
     folder: Path
-    model: ModelSpec
+    system: SystemSpec
     fit: FitSettings
     data: dict[str, dict]
     truth: Truth | None
@@ -127,9 +130,19 @@ class ProblemSpec:
     diagnose: "DiagnoseSettings | None" = None
 
     @property
-    def system(self) -> SystemSpec:
-        """The model as a system of one equation."""
-        return SystemSpec.of(self.model)
+    def model(self) -> ModelSpec:
+        """The equation of a one-equation spec."""
+        if self.system.single is None:
+            raise CvxidError(f"spec '{self.name}' has {len(self.equations)} coupled equations: use spec.system")
+        return self.system.single
+
+    @property
+    def equations(self) -> dict[str, ModelSpec]:
+        return self.system.equations
+
+    @property
+    def coordinates(self) -> tuple[str, ...]:
+        return tuple(self.equations)
 
     def library(self, order: int) -> Library:
         """The spec's polynomial library at another order (for the order search)."""
@@ -143,20 +156,40 @@ class ProblemSpec:
         """Load or simulate the ``train`` or ``test`` experiment."""
         if which not in self.data:
             raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
-        return _experiment(self, which, self.data[which])
+        table, where = self.data[which], f"data.{which}"
+        if "simulate" in table:
+            return _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
+        inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
+        velocity = table.get("velocity")
+        if velocity is None and self.fit.velocity not in ESTIMATORS + ("measured", "auto"):
+            velocity = self.fit.velocity  # [fit] velocity names a measured column
+        first = self.coordinates[0]
+        return load(
+            self.folder / _string(table, "file", where),
+            time=_string(table, "time", where, "t"),
+            outputs=_names(table.get("output", {c: c for c in self.coordinates}), first, where, "output"),
+            inputs=_names(table.get("input", {i: i for i in inputs}), inputs[0], where, "input"),
+            velocities=_names(velocity, first, where, "velocity") if velocity else None,
+            name=which,
+            gaps=_bool(table, "gaps", where, False),
+        )
 
     def __repr__(self) -> str:
-        return (
-            f"ProblemSpec '{self.name}' ({self.folder})\n{self.model!r}\n"
-            f"  fit: {self.fit.estimator}, {len(self.fit.lambdas)} lambdas, velocity {self.fit.velocity}, "
-            f"solver {self.fit.solver}\n  data: {', '.join(self.data)}"
-        )
+        if self.system.single is not None:
+            head = f"ProblemSpec '{self.name}' ({self.folder})\n{self.model!r}"
+        else:
+            lines = [f"ProblemSpec '{self.name}' ({self.folder}): {len(self.equations)} coupled equations"]
+            lines += [f"  {s!r}".replace("\n", "\n  ") for s in self.equations.values()]
+            lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in self.system.ties]
+            head = "\n".join(lines)
+        return (f"{head}\n  fit: {self.fit.estimator}, {len(self.fit.lambdas)} lambdas, velocity {self.fit.velocity}, "
+                f"solver {self.fit.solver}\n  data: {', '.join(self.data)}")
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
-MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic"}
+MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
             "refine", "window", "loss"}
 
@@ -169,14 +202,41 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
             f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: {', '.join(sorted(TOP_KEYS))}"
         )
     name = _string(raw, "name", "", default_name)
-    model, polynomial = _model(_table(raw, "model", "", MODEL_KEYS, required=True))
+    model_table = _table(raw, "model", "", MODEL_KEYS, required=True)
+    model, polynomial = _model(model_table)
+    ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
+    if ties and (fit.estimator == "stepwise_oe" or fit.orders or "diagnose" in raw):
+        raise CvxidError("spec: [[model.tie]] in one equation works with the lambda path, bootstrap, Huber and the "
+                         "output-error polish; not yet with estimator = \"stepwise_oe\", [fit] orders or [diagnose]")
     data = data_sections(raw)
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
     diag = _diagnose(raw, model) if "diagnose" in raw else None
-    return ProblemSpec(name, folder, model, fit, data, truth, str(raw.get("description", "")), polynomial, diag)
+    return ProblemSpec(name, folder, SystemSpec({model.coordinate: model}, ties), fit, data, truth,
+                       str(raw.get("description", "")), polynomial, diag)
+
+
+def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, str, float], ...]:
+    """The checked ``[[model.tie]]`` tables: ``left = factor * right``, two columns of the
+    system (``written`` says how columns are named)."""
+    tables = model.get("tie", [])
+    if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
+        raise CvxidError("spec: ties are [[model.tie]] tables with left, right and factor")
+    ties = []
+    for i, t in enumerate(tables):
+        where = f"model.tie[{i}]"
+        t = _table({f"tie[{i}]": t}, f"tie[{i}]", "model", {"left", "right", "factor"})
+        left, right = _string(t, "left", where), _string(t, "right", where)
+        for side in (left, right):
+            if side not in columns:
+                raise CvxidError(f"spec: [{where}] '{side}' is not a column; columns are written {written}, one of: "
+                                 f"{', '.join(sorted(columns))}")
+        if left == right:
+            raise CvxidError(f"spec: [{where}] ties '{left}' to itself; name two different columns")
+        ties.append((left, right, float(_number(t, "factor", where, 1.0))))
+    return tuple(ties)
 
 
 def data_sections(raw: Table) -> dict[str, dict]:
@@ -359,14 +419,15 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         if tau < 0:
             raise CvxidError(f"spec: [truth.delay] tau must be >= 0, got {tau}")
     history = _string(t, "history", where, "zero", choices=HISTORIES)
-    system = System(tuple(terms), np.array(values), mass, coord, gain, tau, derivative, history)
+    system = CoupledSystem((Equation(coord, mass, tuple(terms), tuple(values), 1.0, gain),), coord, tau, history,
+                           derivative)
     physical = {"m": mass}
     for term, value in zip(terms, values):
         pname, sign = model.named_parameter(term.name)
         physical[pname] = sign * value
     if "delay" in t:
         physical["tau"] = tau
-    return Truth(system, physical)
+    return Truth(system, model.input, physical)
 
 
 # ---------------------------------------------------------------------- experiments
@@ -378,38 +439,27 @@ def _names(value, default_key: str, where: str, key: str) -> dict[str, str]:
     raise CvxidError(f"spec: [{where}] {key} must be a column name or a table of names, got {value!r}")
 
 
-def _experiment(spec: ProblemSpec, which: str, table: Table) -> Experiment:
-    where = f"data.{which}"
-    model = spec.model
-    if "simulate" in table:
-        return _simulated(spec, which, _table(table, "simulate", where, SIM_KEYS))
-    file = spec.folder / _string(table, "file", where)
-    velocity = table.get("velocity")
-    if velocity is None and spec.fit.velocity not in ESTIMATORS + ("measured", "auto"):
-        velocity = spec.fit.velocity  # [fit] velocity names a measured column
-    return load(
-        file,
-        time=_string(table, "time", where, "t"),
-        outputs=_names(table.get("output", model.coordinate), model.coordinate, where, "output"),
-        inputs=_names(table.get("input", model.input), model.input, where, "input"),
-        velocities=_names(velocity, model.coordinate, where, "velocity") if velocity else None,
-        name=which,
-        gaps=_bool(table, "gaps", where, False),
-    )
+def _per_coordinate(sim: Table, key: str, where: str, coords: tuple[str, ...]) -> dict[str, float]:
+    """An initial state: one number for every coordinate, or a table by coordinate."""
+    value = sim.get(key, 0.0)
+    if isinstance(value, Mapping):
+        unknown = set(value) - set(coords)
+        if unknown:
+            raise CvxidError(f"spec: [{where}] {key} names unknown coordinate(s) {', '.join(sorted(unknown))}")
+        return {c: float(_number(value, c, f"{where}.{key}", 0.0)) for c in coords}
+    return {c: float(_number(sim, key, where, 0.0)) for c in coords}
 
 
 def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
     where = f"data.{which}.simulate"
     t, force, sx, sf, rng = simulation_setup(sim, where)
-    x, v = simulate(spec.truth.system, t, force, _number(sim, "x0", where, 0.0), _number(sim, "v0", where, 0.0))
-    model = spec.model
-    return Experiment(
-        t,
-        {model.coordinate: x + sx * rng.standard_normal(t.size)},
-        {model.input: force(t) + sf * rng.standard_normal(t.size)},
-        name=which,
-        velocities={model.coordinate: v},  # the simulator's true velocity, for velocity = "measured"
-    )
+    coords = spec.coordinates
+    x, v = simulate_coupled(spec.truth.system, t, force, _per_coordinate(sim, "x0", where, coords),
+                            _per_coordinate(sim, "v0", where, coords))
+    outputs = {c: x[c] + sx * rng.standard_normal(t.size) for c in coords}
+    # the simulator's true velocities travel along, for velocity = "measured"
+    return Experiment(t, outputs, {spec.truth.input: force(t) + sf * rng.standard_normal(t.size)}, name=which,
+                      velocities=v)
 
 
 def simulation_setup(sim: Table, where: str):

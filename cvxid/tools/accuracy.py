@@ -54,13 +54,13 @@ def _experiment(spec: ProblemSpec, noise: float | None, seed: int):
 
 
 def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None]:
-    truth = spec.truth
+    truth, (equation,) = spec.truth.system, spec.truth.system.equations
     base = spec.model
-    library = Library(truth.system.terms)
-    gain = truth.system.gain
+    library = Library(equation.terms)
+    gain = equation.delay_gain
     if method in ("paper as published", "paper (true v)", "paper", "taylor5"):
         paper = method.startswith("paper")
-        delay = DelayedFeedback(base.coordinate, truth.system.derivative, gain, 3 if paper else 5)
+        delay = DelayedFeedback(base.coordinate, truth.derivative, gain, 3 if paper else 5)
         orders = {"paper as published": (2, 3), "taylor5": (5, 6)}.get(method, (None, None))
         model = replace(base, library=library, delay=delay, orders=orders,
                         keep_initial_conditions=method == "paper as published")
@@ -69,9 +69,9 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
         problem = Problem.from_regression(reg, model.nonnegative)
         fit = stlsq(problem, 0.0) if paper else problem.refit(np.ones(problem.k, bool))
         return model.physical(dict(zip(reg.names, fit.coefficients))), None
-    tau_max = max(0.5, 2.5 * float(truth.system.tau))
-    delay = DelayedFeedback(base.coordinate, truth.system.derivative, gain, method="exact", tau_max=tau_max,
-                            history=truth.system.history)
+    tau_max = max(0.5, 2.5 * float(truth.tau))
+    delay = DelayedFeedback(base.coordinate, truth.derivative, gain, method="exact", tau_max=tau_max,
+                            history=truth.history)
     model = replace(base, library=library, delay=delay)
     family = RegressionBuilder(model, experiment, "savgol")
     profile = profile_delay(family, nonnegative=model.nonnegative)
@@ -86,7 +86,7 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
 
 def accuracy(spec: ProblemSpec, noises=NOISES, seeds: int = 5, methods=METHODS) -> pd.DataFrame:
     """One row per (method, noise): tau error and worst other-parameter error (%)."""
-    if spec.truth is None or not spec.truth.system.gain:
+    if spec.truth is None or not spec.truth.system.equations[0].delay_gain:
         raise CvxidError("the accuracy benchmark needs a [truth] with a delayed feedback")
     truth = spec.truth.physical
     rows = []
