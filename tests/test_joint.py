@@ -86,7 +86,7 @@ def _raw():
 @pytest.mark.parametrize("edit, message", [
     (lambda r: r["model"]["tie"][0].update(left="alpha:gamma"), "'alpha:gamma' is not a column"),
     (lambda r: r["model"]["equation"][1].update(coordinate="theta"), "two [[model.equation]] tables have the coordinate"),
-    (lambda r: r["model"].update(equation=r["model"]["equation"][:1]), "'alpha:theta'' is not a column"),
+    (lambda r: r["model"].update(equation=r["model"]["equation"][:1]), "needs exactly one [[truth.equation]]"),
     (lambda r: r["model"]["delay"].update(method="taylor"), 'method = "exact"'),
     (lambda r: r["model"].pop("delay"), "missing section [model.delay]"),
     (lambda r: r["model"]["equation"][1].update(names={"k_s": "alpha"}), "'k_s' is given in two equations"),
