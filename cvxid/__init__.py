@@ -10,8 +10,8 @@ The main entry points:
 from cvxid.app.result import RunResult
 from cvxid.app.run import order_search, refine_spec, run
 from cvxid.data.experiment import Experiment, from_frame, load
-from cvxid.diagnose.diagnosis import compare, diagnose, residuals, with_effect
-from cvxid.diagnose.diagnosis import refine as refine_model
+from cvxid.diagnosis.equation import compare, diagnose, residuals, with_effect
+from cvxid.diagnosis.equation import refine as refine_model
 from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap

@@ -25,7 +25,7 @@ import numpy as np
 from scipy.io import loadmat
 
 from cvxid import Experiment, Library, ModelSpec, compare, diagnose
-from cvxid.diagnose.diagnosis import refine, refit
+from cvxid.diagnosis.equation import refine, refit
 from cvxid.model.terms import parse_term
 
 HERE = Path(__file__).resolve().parent

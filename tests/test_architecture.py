@@ -19,7 +19,7 @@ LAYERS = [
     {"regression"},
     {"identified", "export"},
     {"identify"},
-    {"diagnose"},
+    {"diagnosis"},
     {"spec"},
     {"app", "tools"},
 ]

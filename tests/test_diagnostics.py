@@ -5,7 +5,7 @@ import pytest
 
 from cvxid import CvxidError
 from cvxid.data.experiment import Experiment
-from cvxid.diagnose.diagnosis import (
+from cvxid.diagnosis.equation import (
     compare,
     diagnose,
     refine,

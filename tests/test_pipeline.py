@@ -10,6 +10,7 @@ import pytest
 
 from cvxid.app.cli import main
 from cvxid.app.run import run
+from cvxid.spec.load import load_problem
 
 from .conftest import ROOT, cli_error, needs_paper_data
 
@@ -171,3 +172,31 @@ def test_result_json_is_strict_json_without_a_test_experiment(tmp_path):
     assert main(["run", str(spec), "--out", str(out)]) == 0
     data = json.loads((out / "result.json").read_text(), parse_constant=lambda c: pytest.fail(f"non-JSON {c}"))
     assert data["test_mse"] is None
+
+
+def test_one_run_transforms_each_record_once(monkeypatch):
+    """The hidden-friction job (diagnosis, refit with the added effect, output-error
+    polish): the train and the test records are transformed once each (11 times before the
+    regression builder), the delay is profiled twice (whole library, then with the added
+    friction) and a handful of cvxpy Problems are built (233 before)."""
+    import cvxid.diagnosis.equation as diagnosis_module
+    import cvxid.identify.system as system_module
+    from cvxid.identify.problem import Problem
+    from cvxid.regression.builder import RegressionBuilder
+
+    counts = {"builders": 0, "profiles": 0, "problems": 0}
+
+    def counting(name, original):
+        def wrapper(*args, **kwargs):
+            counts[name] += 1
+            return original(*args, **kwargs)
+        return wrapper
+
+    monkeypatch.setattr(RegressionBuilder, "__init__", counting("builders", RegressionBuilder.__init__))
+    monkeypatch.setattr(Problem, "__init__", counting("problems", Problem.__init__))
+    for module in (system_module, diagnosis_module):
+        monkeypatch.setattr(module, "profile_delay", counting("profiles", module.profile_delay))
+    result = run(load_problem(ROOT / "problems" / "hidden_friction.toml"))
+    assert [s.added for s in result.refinement.steps] == ["coulomb"]
+    assert counts["builders"] == 2 and counts["profiles"] == 2
+    assert counts["problems"] <= 10

@@ -174,6 +174,7 @@ class RunResult:
             "support": [k for k, v in system.coefficients.items() if v != 0.0],
             "ties": [{"left": a, "right": b, "factor": f} for a, b, f in system.ties],
             "test_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["fit_percent"].items()},
+            "test_k_step_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["k_step_fit_percent"].items()},
             "lambda": self.lam,
             "solver": self.spec.fit.solver,
             "diagnosis": None if not (self.refinement and self.refinement.rankings) else {
@@ -224,7 +225,8 @@ class RunResult:
                      + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
         if self.test is not None:
             fits = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["fit_percent"].items())
-            lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits}")
+            ahead = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["k_step_fit_percent"].items())
+            lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits}; k-step fit {ahead}")
         else:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:

@@ -23,8 +23,8 @@ import pandas as pd
 
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
-from cvxid.diagnose.diagnosis import compare, diagnose, refine
-from cvxid.diagnose.joint import refine_joint
+from cvxid.diagnosis.coupled import refine_joint
+from cvxid.diagnosis.equation import compare, diagnose, k_step_predictions, refine
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
@@ -35,10 +35,12 @@ from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
 from cvxid.identify.system import fit_support, identified
+from cvxid.metrics import fit_percent
 from cvxid.model.system import SystemSpec
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
+from cvxid.simulate import SimulationDiverged
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
 
@@ -163,7 +165,15 @@ def _compare(out: RunResult):
     if out.test is None:
         return
     if out.coupled:
-        out.test_fit = out.system.compare(out.test)
+        table = out.system.compare(out.test)
+        k = max(2, int(round(0.1 / out.test.dt)))  # a tenth of a second, as for one equation
+        try:
+            ahead = k_step_predictions(out.system, out.test, k)
+            table["k_step_fit_percent"] = [fit_percent(out.test.output(c), ahead[c]) for c in table.index]
+        except SimulationDiverged as exc:
+            table["k_step_fit_percent"] = np.nan
+            warnings.warn(f"k-step: {exc}", CvxidWarning, stacklevel=2)
+        out.test_fit = table
         return
     out.test_fit = compare(out.model, out.test)
     if out.test_fit.message:
@@ -171,8 +181,8 @@ def _compare(out: RunResult):
 
 
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):
-    """Diagnose → add → refit (one equation: :func:`~cvxid.diagnose.diagnosis.refine`;
-    coupled: :func:`~cvxid.diagnose.joint.refine_joint`), on the run's own transformed data."""
+    """Diagnose → add → refit (one equation: :func:`~cvxid.diagnosis.equation.refine`;
+    coupled: :func:`~cvxid.diagnosis.coupled.refine_joint`), on the run's own transformed data."""
     settings, window = spec.diagnose, spec.fit.window
     steps = settings.max_steps if settings.refine else 0
     if out.test is None:
@@ -266,7 +276,7 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
 
 def refine_spec(spec: ProblemSpec | str | FilePath, **settings):
     """Run ``spec`` with its diagnosis loop on (``[diagnose] refine = true``); the loop's
-    :class:`~cvxid.diagnose.diagnosis.Refinement` (steps, diagnoses, final model, ``plot()``)."""
+    :class:`~cvxid.diagnosis.equation.Refinement` (steps, diagnoses, final model, ``plot()``)."""
     from cvxid.spec.problem import DiagnoseSettings
 
     if not isinstance(spec, ProblemSpec):

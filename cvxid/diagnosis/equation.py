@@ -29,7 +29,7 @@ from scipy.signal import savgol_filter
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
-from cvxid.identified import IdentifiedModel
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
 from cvxid.metrics import fit_percent
@@ -38,7 +38,7 @@ from cvxid.model.library import CATALOGUE, effect, resolve_term
 from cvxid.model.terms import DelayedSignal, Term
 from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.velocity import initial_state, savgol_window
-from cvxid.simulate import SimulationDiverged, simulate
+from cvxid.simulate import SimulationDiverged, integrate
 
 COLLINEAR = 0.9
 """Candidates whose orthogonalised columns correlate above this form one group."""
@@ -101,32 +101,62 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
 def k_step_prediction(model: IdentifiedModel, experiment: Experiment, k: int) -> np.ndarray:
     """Each window of ``k`` samples simulated from the measured (smoothed) state at its
     start, with the delayed feedback taken from the measured output."""
-    spec = model.spec
-    t, y = experiment.time, experiment.output(spec.coordinate)
-    smooth = savgol_filter(y, savgol_window(y), 3, mode="interp")
-    vel = savgol_filter(y, savgol_window(y), 3, deriv=1, delta=experiment.dt, mode="interp")
-    system = model.system()
-    force = experiment.input(spec.input) + _measured_feedback(system, t, smooth, vel)
+    return k_step_predictions(IdentifiedSystem.of(model), experiment, k)[model.spec.coordinate]
+
+
+def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int) -> dict[str, np.ndarray]:
+    """:func:`k_step_prediction` of every coordinate of a system of N >= 1 equations: the
+    windows run as one batch through the integrator, each from the smoothed measured states
+    at its start, every equation driven by its input and its feedback read from the
+    measured (smoothed) delayed coordinate."""
+    t, coords = experiment.time, system.coordinates
+    smooth, vel = {}, {}
+    for c in coords:
+        y = experiment.output(c)
+        smooth[c] = savgol_filter(y, savgol_window(y), 3, mode="interp")
+        vel[c] = savgol_filter(y, savgol_window(y), 3, deriv=1, delta=experiment.dt, mode="interp")
+    numeric = system.system()
+    d = numeric.delayed
+    feedback = _measured_delayed(numeric.tau, numeric.history, numeric.derivative, t, smooth[d], vel[d])
+    splines = [CubicSpline(t, experiment.input(m.spec.input) + eq.delay_gain * feedback)
+               for m, eq in zip(system.models.values(), numeric.equations)]
     starts = np.arange(0, len(t) - 1, k)
-    spline = CubicSpline(t, force)
     local = t[: k + 1] - t[0]
-    batch = replace(system, coefficients=np.tile(np.atleast_1d(system.coefficients), (len(starts), 1)), gain=0.0)
-    xs, _ = simulate(batch, local, lambda s: spline(t[starts][None, :] + s[:, None]), smooth[starts], vel[starts])
-    out = np.empty_like(y)
-    out[0] = smooth[0]
-    for j, s in enumerate(starts):
-        stop = min(s + k, len(t) - 1)
-        out[s + 1 : stop + 1] = xs[1 : stop - s + 1, j]
+    B, C = starts.size, len(coords)
+    coefs, mass, _ = numeric.arrays()
+
+    def forces(fine: np.ndarray, h: float) -> np.ndarray:
+        at = t[starts][None, :] + fine[:, None]
+        return np.stack([spline(at) for spline in splines], axis=1)  # (S, C, B)
+
+    X, _ = integrate(local, forces, coords, [eq.terms for eq in numeric.equations], np.repeat(coefs, B, axis=1),
+                     np.repeat(mass, B, axis=1), np.zeros((C, B)), np.zeros(B),
+                     np.array([smooth[c][starts] for c in coords]), np.array([vel[c][starts] for c in coords]), 0)
+    out = {}
+    for j, c in enumerate(coords):
+        pred = np.empty_like(t)
+        pred[0] = smooth[c][0]
+        for b, s in enumerate(starts):
+            stop = min(s + k, len(t) - 1)
+            pred[s + 1 : stop + 1] = X[1 : stop - s + 1, j, b]
+        out[c] = pred
     return out
+
+
+def _measured_delayed(tau: float, history: str, derivative: int, t: np.ndarray, x: np.ndarray,
+                      v: np.ndarray) -> np.ndarray:
+    r"""The delayed signal :math:`x^{(q)}(t-\tau)` read from (smoothed) measurements (before
+    the record: zero, or the first sample with ``history = "initial"``)."""
+    lagged = np.interp(t - tau, t, x if derivative == 0 else v)
+    lagged[t - t[0] < tau] = 0.0 if history == "zero" else x[0]
+    return lagged
 
 
 def _measured_feedback(system, t: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
     r"""The delayed feedback :math:`b\,x^{(q)}(t-\tau)` read from (smoothed) measurements."""
     if not system.gain:
         return np.zeros_like(t)
-    lagged = np.interp(t - system.tau, t, x if system.derivative == 0 else v)
-    lagged[t - t[0] < system.tau] = 0.0 if system.history == "zero" else x[0]
-    return system.gain * lagged
+    return system.gain * _measured_delayed(system.tau, system.history, system.derivative, t, x, v)
 
 
 # ---------------------------------------------------------------------- residuals
