@@ -39,16 +39,25 @@ def test_rank_deficient_library_is_named():
         reg.reduce()
 
 
-def test_infeasible_constraints_are_an_error(monkeypatch):
+def test_a_solver_reporting_infeasible_is_a_numerical_failure_not_zeros(monkeypatch):
+    # signs and ties are homogeneous (all zero satisfies them), so an "infeasible" status
+    # can only be the solver failing: an injected failure must end in an error naming it
     prob = Problem.from_arrays(np.column_stack([np.sin(T), T]), np.cos(T), ["a", "b"], nonnegative=["a"])
 
     def infeasible(self, settings):
-        self.cvxpy._status = cp.INFEASIBLE  # what a solver reports for contradictory constraints
+        self.cvxpy._status = cp.INFEASIBLE
         return None
 
     monkeypatch.setattr(Problem, "_attempt", infeasible)
-    with pytest.raises(SolverFailure, match="constraints cannot all hold together"):
+    with pytest.raises(SolverFailure, match=r"reported the constraints \(c\[a\] >= 0\) infeasible.*Try solver = 'OSQP'"):
         prob.solve(0.1)
+
+
+def test_identically_zero_target_is_named():
+    reg = Regression(np.column_stack([np.sin(T), np.cos(T)]), np.zeros(T.size), ("a", "b"), ("library",) * 2,
+                     np.ones(2))
+    with pytest.raises(CvxidError, match="target is identically zero: the input carries no signal"):
+        reg.reduce()
 
 
 @pytest.mark.parametrize(

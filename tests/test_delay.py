@@ -114,9 +114,12 @@ def test_output_error_polish_reaches_the_noise_floor():
     phys = refinement.model.physical
     for name in ("m", "x", "x^3"):  # well determined by this record
         assert phys[name] == pytest.approx(TRUE[name], rel=0.02), name
-    for name in ("x'", "tau"):  # damping and delay trade off here: the interval must say so
+    for name in ("m", "x", "x^3"):  # and their intervals are narrow (measured widths 3.3 %, 0.4 %, 2.5 %)
         lo, hi = refinement.interval(name, z=3.0)
-        assert lo <= TRUE[name] <= hi, name
+        assert lo <= TRUE[name] <= hi and hi - lo < 0.05 * TRUE[name], name
+    for name, width in (("x'", 0.35), ("tau", 0.25)):  # damping and delay trade off here: the interval must
+        lo, hi = refinement.interval(name, z=3.0)     # say so, and stay finite (measured 0.28, 0.19 wide)
+        assert lo <= TRUE[name] <= hi and 0 < hi - lo < width, name
 
 
 def test_a_start_outside_the_bounds_is_projected_and_said():

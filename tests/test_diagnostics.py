@@ -13,6 +13,7 @@ from cvxid.diagnosis.equation import (
     residuals,
     with_effect,
 )
+from cvxid.identified import IdentifiedModel
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
@@ -61,7 +62,8 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     result = refine(start, train, test)
     assert [s.added for s in result.steps] == [hidden]  # added, then the loop stops
     step = result.steps[0]
-    assert step.test_mse_before >= 3 * step.test_mse_after
+    # measured: the test equation error falls 1156x (coulomb), 19770x (cubic), 3e5x (quadratic)
+    assert step.test_mse_before >= 500 * step.test_mse_after
     assert step.fit_after > 90
     assert hidden in {g for group in dx.groups for g in group}
 
@@ -118,17 +120,32 @@ def test_with_effect_adds_the_term_and_its_sign_constraint():
 
 def test_a_wrong_delay_is_named_and_estimated_again():
     train, test = experiments(None)
-    right = refit(linear_model(), train, ["x''", "x", "x'"], None)
-    assumed = refit(linear_model(), train, ["x''", "x", "x'"], None)
-    # the same terms with an assumed delay of 0.3 s (truth 0.15 s): least squares at that delay
+    # the true terms with an assumed delay of 0.3 s (truth 0.15 s): least squares at that delay
     from cvxid.identify.problem import Problem
     from cvxid.regression.builder import RegressionBuilder
     family = RegressionBuilder(linear_model(), train, "savgol")
     fit = Problem.from_regression(family.at(0.3), ("x''",)).refit(np.ones(3, bool))
-    assumed = type(right)(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)
+    assumed = IdentifiedModel(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)
     dx = diagnose(assumed, train, test)
     assert dx.top == "delay", dx
     result = refine(assumed, train, test)
     assert result.steps[0].added == "delay"
     assert result.steps[0].test_mse_before >= 3 * result.steps[0].test_mse_after
-    assert result.model.tau == pytest.approx(right.tau, abs=1e-3)
+    # against the truth, not against a refit made by the same call: the re-estimated delay
+    # is much nearer (measured 0.170, +13 %) than the assumed 0.3
+    assert abs(result.model.tau - 0.15) < 0.2 * abs(0.3 - 0.15)
+    assert result.model.physical["x"] == pytest.approx(6.0, rel=0.01)
+
+
+@pytest.mark.xfail(strict=True, reason="issue 12: the equation-error delay of whole-record integrals is biased "
+                                       "(measured +13 % here); this passes once the core is well conditioned")
+def test_a_wrong_delay_is_estimated_again_within_two_percent():
+    from cvxid.identify.problem import Problem
+    from cvxid.regression.builder import RegressionBuilder
+
+    train, test = experiments(None)
+    family = RegressionBuilder(linear_model(), train, "savgol")
+    fit = Problem.from_regression(family.at(0.3), ("x''",)).refit(np.ones(3, bool))
+    assumed = IdentifiedModel(linear_model(), dict(zip(family.at(0.3).names, fit.coefficients)), tau=0.3)
+    result = refine(assumed, train, test)
+    assert result.model.tau == pytest.approx(0.15, rel=0.02)

@@ -22,9 +22,14 @@ def run_example(name, monkeypatch, tmp_path, capsys, **env):
 
 def test_hidden_effect_story(monkeypatch, tmp_path, capsys):
     out = run_example("hidden_effect.py", monkeypatch, tmp_path, capsys)
-    assert "coulomb" in out.split("Refinement")[1]
+    # the refinement table's one row: coulomb added, the test equation error falls from 54.9
+    # to 0.047 and the free-run fit rises from -2 % to 97 % (measured)
+    steps = [line.split() for line in out.split("Refinement")[1].splitlines() if line.startswith("coulomb ")]
+    assert len(steps) == 1
+    before, after, fit_before, fit_after = map(float, steps[0][-4:])
+    assert before > 500 * after and fit_before < 10 and fit_after > 95
     for figure in ("1_linear_fit", "2_residual_vs_velocity", "3_error_falls", "4_final_fit"):
-        assert (tmp_path / f"{figure}.png").is_file()
+        assert (tmp_path / f"{figure}.png").stat().st_size > 10_000  # a drawn figure, not an empty file
 
 
 @pytest.mark.slow
@@ -36,8 +41,9 @@ def test_paper_example_table(monkeypatch, tmp_path, capsys):
         for method in ("paper as published", "exact+oe"):
             if line.startswith(method):
                 errors[method] = float(line[len(method):].split()[2])
-    assert errors["paper as published"] < -10
-    assert abs(errors["exact+oe"]) < 2
+    # measured on seed 1: the paper as published -21.6 %, exact delay + output error -0.69 %
+    assert errors["paper as published"] < -15
+    assert abs(errors["exact+oe"]) < 1.0
 
 
 @pytest.mark.slow
@@ -69,13 +75,14 @@ def test_lambda_path_example(monkeypatch, tmp_path, capsys):
 
 @pytest.mark.slow
 def test_structure_from_noisy_x_meets_the_foundation_criterion(monkeypatch, tmp_path, capsys):
-    # problems/duffing_delay.toml as shipped (seed 1): the 7-term support from noisy x only,
-    # m, k1, k3 within 2 %, c2, c3 within 5 %; the paper's stlsq on the same data misses it
+    # problems/duffing_delay.toml as shipped (seed 1): the 7-term support from noisy x only
+    # (measured: m 0.03 %, k1 0.00 %, k3 0.15 %, c2 0.07 %, c3 0.24 %, c1 0.88 %, tau 0.46 %);
+    # the paper's stlsq on the same data misses it
     run_example("structure_from_noisy_x.py", monkeypatch, tmp_path, capsys, SEEDS="1")
     table = pd.read_csv(tmp_path / "structure_from_noisy_x.csv").set_index("estimator")
     stepwise, stlsq = table.loc["stepwise_oe"], table.loc["stlsq"]
     assert bool(stepwise["true support"]) and not bool(stlsq["true support"])
-    for name, tolerance in {"m": 2, "k1": 2, "k3": 2, "c2": 5, "c3": 5}.items():
+    for name, tolerance in {"m": 0.2, "k1": 0.2, "k3": 0.5, "c2": 0.5, "c3": 0.6, "c1": 1.5, "tau": 1.0}.items():
         assert abs(stepwise[f"{name} %"]) < tolerance, name
 
 
@@ -85,5 +92,5 @@ def test_flexible_joint_example_accuracy_table(monkeypatch, tmp_path, capsys):
     row = next(line.split() for line in out.splitlines() if line.startswith("1 "))
     added, tau_ee, ks_ee, tau, k_s = row[1], *map(float, row[2:6])
     assert added == "coulomb(theta)"
-    assert abs(tau) < 1.0 and abs(k_s) < 1.0  # %, the output-error estimate (criterion: 5 %)
+    assert abs(tau) < 0.1 and abs(k_s) < 0.5  # %, the output-error estimate (measured +0.03 %, -0.21 %)
     assert abs(k_s) < abs(ks_ee) and abs(tau) < abs(tau_ee)  # the polish improves on the equation error

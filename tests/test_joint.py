@@ -3,6 +3,7 @@ the coupled spec format."""
 
 import json
 
+import numpy as np
 import pytest
 
 from cvxid.app.cli import main
@@ -21,10 +22,11 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     assert main(["run", str(SPEC), "--out", str(tmp_path)]) == 0
     result = json.loads((tmp_path / "result.json").read_text())
     physical, truth = result["physical"], result["truth"]
-    # the issue asks for 5 %; the joint output-error fit reaches the noise floor
-    assert physical["tau"] == pytest.approx(truth["tau"], rel=0.01)
-    assert physical["k_s"] == pytest.approx(truth["k_s"], rel=0.01)
-    assert physical["J_eq"] == pytest.approx(truth["J_eq"], rel=0.02)
+    # the issue asked for 5 %; the joint output-error fit reaches the noise floor
+    # (measured: tau +0.02 %, k_s -0.17 %, J_eq +0.16 %)
+    assert physical["tau"] == pytest.approx(truth["tau"], rel=1e-3)
+    assert physical["k_s"] == pytest.approx(truth["k_s"], rel=5e-3)
+    assert physical["J_eq"] == pytest.approx(truth["J_eq"], rel=5e-3)
     # the starting library lacks the friction: the diagnosis ranks it first and adds it
     assert result["diagnosis"]["ranking"][0]["term"] == "sign(theta')"
     steps = result["refinement"]
@@ -71,7 +73,7 @@ def test_files_of_both_earlier_schemas_still_load(tmp_path):
     assert loaded.compare(test)["fit_percent"].to_dict() == pytest.approx(system.compare(test)["fit_percent"].to_dict())
     single = system.models["theta"]
     (tmp_path / "one.json").write_text(json.dumps(single.to_dict()))
-    assert json.loads(single.to_dict() and (tmp_path / "one.json").read_text())["schema"] == "cvxid.identified/1"
+    assert json.loads((tmp_path / "one.json").read_text())["schema"] == "cvxid.identified/1"
     assert IdentifiedModel.load(tmp_path / "one.json").coefficients == single.coefficients
     with pytest.raises(CvxidError, match="coupled equations: read it with IdentifiedSystem.load"):
         IdentifiedModel.load(tmp_path / "joint.json")
@@ -187,3 +189,54 @@ def test_coupled_run_reports_the_k_step_fit_of_every_coordinate():
     assert set(ahead) == {"theta", "alpha"}
     assert min(ahead.values()) > 95
     assert all(ahead[c] >= free[c] - 1 for c in ahead)
+
+
+FIXTURES = ROOT / "tests" / "fixtures"
+
+
+@pytest.mark.parametrize("spec, fixture, fits", [
+    # model.json files written by the previous release (cvxid.identified/1, cvxid.joint/1) with the
+    # free-run test fits its run reported
+    ("hidden_friction", "hidden_friction_model_identified_v1.json", {"x": 99.27698364434589}),
+    ("flexible_joint", "flexible_joint_model_joint_v1.json", {"theta": 99.90887588161894, "alpha": 99.40978861848362}),
+])
+def test_model_files_written_by_the_previous_release_load_and_simulate_as_before(spec, fixture, fits):
+    system = IdentifiedSystem.load(FIXTURES / fixture)
+    test = load_problem(ROOT / "problems" / f"{spec}.toml").experiment("test")
+    assert system.compare(test)["fit_percent"].to_dict() == pytest.approx(fits, abs=1e-9)
+
+
+def test_coupled_selection_keeps_its_libraries_through_the_diagnosis():
+    """After the lasso selects each equation's terms, the diagnosis adds effects to the
+    selected model; terms the path dropped do not come back (as before the redesign)."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 15.0
+    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    for equation in raw["model"]["equation"]:
+        equation["library"]["terms"] += ["theta", "theta^3"]
+    raw["model"]["tie"] = raw["model"]["tie"][1:]  # the inertia tie only
+    raw["fit"] = {"estimator": "lasso", "lambdas": {"min": 1e-4, "max": 1e1, "count": 12}, "window": 1.0}
+    result = run(parse_problem(raw, SPEC.parent))
+    libraries = {label: set(m.spec.library.names) for label, m in result.system.models.items()}
+    added = {s["term"] for s in result.refinement.steps}
+    support = {k.partition(":")[2] for k, v in result.system.coefficients.items() if v != 0}
+    assert support <= set().union(*libraries.values()) | added | {"theta''", "alpha''"}
+    assert all(len(library) < 5 + len(added) for library in libraries.values())  # something was dropped
+
+
+def test_coupled_selection_without_test_data_cross_validates():
+    """No [data.test]: lambda is chosen by blocked 5-fold cross-validation over time (it
+    used to be refused for coupled specs and to fall silently to the smallest lambda for one
+    equation); the ties hold in every fold."""
+    raw = _raw()
+    raw.pop("diagnose")
+    raw["data"].pop("test")
+    raw["data"]["train"]["simulate"].update(duration=20.0, noise={"output": 0.0})
+    for equation in raw["truth"]["equation"]:  # the library is the true structure
+        equation["coefficients"].pop("sign(theta')")
+    raw["fit"] = {"estimator": "stlsq", "lambdas": {"min": 1e-8, "max": 1e-1, "count": 12}, "window": 1.0}
+    result = run(parse_problem(raw, SPEC.parent))
+    assert np.all(np.isfinite(result.path.validation)) and result.lam > 1e-8
+    coefficients = result.system.coefficients
+    assert coefficients["alpha:theta'"] == pytest.approx(-coefficients["theta:theta'"], rel=1e-9)
+    assert result.physical["k_s"] == pytest.approx(1.3, rel=0.02)

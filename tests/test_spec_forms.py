@@ -126,3 +126,13 @@ def test_bad_ties_in_one_equation_are_named(tie, message):
     raw["model"]["tie"] = [tie]
     with pytest.raises(CvxidError, match=message):
         parse_problem(raw, ROOT)
+
+
+def test_a_tie_whose_columns_the_lasso_drops_holds_at_zero():
+    """At a large lambda the lasso drops both tied columns: the tie holds at zero (it used
+    to end in a KeyError inside the refit)."""
+    raw = tomllib.loads(TIED)
+    raw["fit"] = {"estimator": "lasso", "lambdas": {"min": 10.0, "max": 100.0, "count": 3}}
+    result = run(parse_problem(raw, ROOT))
+    coefficients = result.model.coefficients
+    assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], abs=1e-12)

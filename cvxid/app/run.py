@@ -24,7 +24,13 @@ import pandas as pd
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.coupled import refine_joint
-from cvxid.diagnosis.equation import compare, diagnose, k_step_predictions, refine
+from cvxid.diagnosis.equation import (
+    compare,
+    diagnose,
+    k_step_predictions,
+    k_step_samples,
+    refine,
+)
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
@@ -39,7 +45,7 @@ from cvxid.metrics import fit_percent
 from cvxid.model.system import SystemSpec
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
-from cvxid.regression.velocity import ESTIMATORS
+from cvxid.regression.velocity import ESTIMATORS, initial_state
 from cvxid.simulate import SimulationDiverged
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -76,6 +82,10 @@ def _best_velocity(spec) -> RunResult:
     return best
 
 
+CV_FOLDS = 5
+"""Blocked cross-validation folds that choose lambda when the spec has no test experiment."""
+
+
 def _identify(spec) -> RunResult:
     fit = spec.fit
     system = spec.system
@@ -96,7 +106,7 @@ def _identify(spec) -> RunResult:
     test_rows = SystemBuilder(system.equations, test, velocity, fit.window) if test else None
     if fit.estimator == "stepwise_oe":
         return _stepwise(spec, rows, test_rows, train, test)
-    whole = fit_support(system, rows, solver=fit.solver) if system.exact else None
+    whole, whole_system = (fit_support(system, rows, solver=fit.solver) if system.exact else None), system
     tau = whole.tau if whole else None
     regression = rows.at(tau, system.equations)
     validation = test_rows.at(tau, system.equations) if test else None
@@ -107,12 +117,19 @@ def _identify(spec) -> RunResult:
         regression = regression.subset(system.column_names)
         validation = validation.subset(system.column_names)
     problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
-    path = Path.compute(
-        problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator, debias=fit.debias
-    )
-    best = path.best(fit.selection) if validation else path.fits[-1]
+    # lambda by the test error, or without a test experiment by blocked cross-validation over time
+    folds = CV_FOLDS if validation is None and fit.estimator != "lstsq" else None
+    path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator,
+                        debias=fit.debias, folds=folds)
+    best = path.fits[-1] if fit.estimator == "lstsq" else path.best(fit.selection)  # (lstsq: every fit is one)
     keep = best.support | (problem.penalties == 0)
     coefs = dict(zip(problem.names, np.where(keep, best.coefficients, 0.0)))
+    if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
+        system = system.selected([n for n, k in zip(problem.names, keep) if k])
+        regression = regression.subset(system.column_names)
+        validation = validation.subset(system.column_names)
+        problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
+        keep = np.ones(problem.k, bool)
     ensemble = None
     if fit.bootstrap:
         ensemble = search.ensembles[search.best_order] if search else bootstrap(
@@ -123,7 +140,7 @@ def _identify(spec) -> RunResult:
         keep = np.array([coefs[n] != 0 for n in problem.names])
     profile = None
     if system.exact:
-        same = keep.all() and not fit.orders  # the whole library's profile is this support's
+        same = keep.all() and system is whole_system  # the whole library's profile is this support's
         refit = fit_support(system, rows, keep, solver=fit.solver, profile=whole.profile if same else None)
         tau, profile, coefs = refit.tau, refit.profile, refit.coefficients
         validation = test_rows.at(tau, system.equations) if test else None
@@ -166,7 +183,9 @@ def _compare(out: RunResult):
         return
     if out.coupled:
         table = out.system.compare(out.test)
-        k = max(2, int(round(0.1 / out.test.dt)))  # a tenth of a second, as for one equation
+        if not np.isfinite(table["fit_percent"]).all():
+            warnings.warn("free run: the simulation of the test experiment diverged", CvxidWarning, stacklevel=2)
+        k = k_step_samples(out.test.dt)
         try:
             ahead = k_step_predictions(out.system, out.test, k)
             table["k_step_fit_percent"] = [fit_percent(out.test.output(c), ahead[c]) for c in table.index]
@@ -213,13 +232,18 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
 
 COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, starts=0, final_iterations=10)
 """A coupled system's polish schedule: one start, a coarser first step (a coupled record
-is long and every coordinate is simulated; measured on the flexible joint)."""
+is long and every coordinate is simulated; measured on the flexible joint), starting
+states estimated at the full sample rate."""
 
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
     profile's."""
-    out.polish = polish(out.system, out.train, **(COUPLED_POLISH if out.coupled else {}))
+    if out.coupled:
+        initial = ({c: initial_state(out.train.time, out.train.output(c)) for c in out.system.coordinates},)
+        out.polish = polish(out.system, out.train, initial=initial, **COUPLED_POLISH)
+    else:
+        out.polish = polish(out.system, out.train)
     out.system = out.polish.system
     if "tau" in out.polish.parameters:
         out.tau = {"estimate": out.polish.parameters["tau"], "interval": list(out.polish.interval("tau")),

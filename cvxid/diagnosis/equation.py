@@ -84,7 +84,7 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     guess = initial_state(experiment.time, y)
     x0 = guess[0] if x0 is None else x0
     v0 = guess[1] if v0 is None else v0
-    k = k_step or max(2, int(round(0.1 / experiment.dt)))
+    k = k_step or k_step_samples(experiment.dt)
     try:
         sim, _ = model.simulate(experiment, x0, v0)
         free, nrmse, message = fit_percent(y, sim), float(np.linalg.norm(y - sim) / np.linalg.norm(y - y.mean())), ""
@@ -96,6 +96,14 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
         ahead = None
         message = (message + "; " if message else "") + f"k-step: {exc}"
     return Comparison(experiment.time, y, sim, free, nrmse, k, ahead, message)
+
+
+K_STEP_SECONDS = 0.1
+"""The horizon of the k-step-ahead check (a tenth of a second of samples, at least 2)."""
+
+
+def k_step_samples(dt: float) -> int:
+    return max(2, int(round(K_STEP_SECONDS / dt)))
 
 
 def k_step_prediction(model: IdentifiedModel, experiment: Experiment, k: int) -> np.ndarray:

@@ -89,10 +89,12 @@ def _experiments(experiments: Experiment | Sequence[Experiment]) -> list[Experim
 
 
 def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
-           max_iterations: int = 200, starts: int = STARTS, final_iterations: int = 50) -> PolishResult:
+           max_iterations: int = 200, starts: int = STARTS, final_iterations: int = 50,
+           initial=None) -> PolishResult:
     """Output-error polish from the estimated delay and ``starts`` more spread over its
     range: each start is fitted on a simulation step of about ``coarse_step``, the best is
-    refined at the sample step with ``final_iterations`` more (unless ``final`` is false)."""
+    refined at the sample step with ``final_iterations`` more (unless ``final`` is false).
+    ``initial``: each experiment's starting states (see :func:`output_error`)."""
     start = time.perf_counter()
     system, experiments = _system(fitted), _experiments(experiments)
     delay = next(iter(system.specs.values())).delay
@@ -103,7 +105,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     for tau in taus:
         trial = system if tau is None else with_tau(system, tau)
         try:
-            fit = output_error(trial, experiments, step=coarse_step, max_iterations=max_iterations)
+            fit = output_error(trial, experiments, initial, step=coarse_step, max_iterations=max_iterations)
         except CvxidError:
             continue
         if best is None or fit.rms_after < best.rms_after:
@@ -224,7 +226,7 @@ class _Problem:
             for term, c in zip(s.terms, np.atleast_1d(s.coefficients)):
                 names.append(self._name(label, spec.parameter_name(term.name), term.name))
                 start.append(float(c))
-                lower.append(-np.inf)
+                lower.append(0.0 if term.name in spec.nonnegative else -np.inf)  # the spec's signs hold
             if self.delay is not None and spec.delay.gain is None:
                 gain_names.append(self._name(label, "gain", "gain"))
         if self.delay is not None:

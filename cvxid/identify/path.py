@@ -56,7 +56,7 @@ def _cross_validated(problem: Problem, lambdas, folds: int, estimator: str, debi
     for j, rows in enumerate(blocks):
         weights = np.ones(reg.shape[0])
         weights[rows] = 0.0
-        sub = Problem.from_regression(reg, problem.nonnegative, problem.solver, row_weights=weights)
+        sub = Problem.from_regression(reg, problem.nonnegative, problem.solver, row_weights=weights, ties=problem.ties)
         P, p = reg.P[rows], reg.p[rows]
         errors[j] = [np.mean((P @ f.coefficients - p) ** 2) for f in _sweep(sub, lambdas, estimator, debias)]
     fits = _sweep(problem, lambdas, estimator, debias)

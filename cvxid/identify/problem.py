@@ -216,9 +216,12 @@ class Problem:
         seconds = time.perf_counter() - start
         status = self.cvxpy.status
         if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            # signs and ties are homogeneous (all zero satisfies them): this is a numerical failure
+            other = "OSQP" if self.solver == "CLARABEL" else "CLARABEL"
             raise SolverFailure(
-                f"the constraints cannot all hold together ({', '.join(self.constraints)}); "
-                "remove the one that contradicts the others"
+                f"solver {self.solver} reported the constraints ({', '.join(self.constraints)}) infeasible at "
+                f"lambda = {lam:.3g}, though all zero satisfies them: a numerical failure; no solution is reported. "
+                f"Try solver = '{other}' or rescale the data"
             )
         if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.c.value is None:
             raise SolverFailure(
@@ -299,6 +302,7 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
     for a, b, _ in ties:
         ia, ib = names.index(a), names.index(b)
         mask[ia] = mask[ib] = mask[ia] or mask[ib]
+    ties = [t for t in ties if mask[names.index(t[0])]]  # a tie of two columns off the support holds at zero
     idx = np.flatnonzero(mask)
     lower = np.array([0.0 if names[i] in nonnegative else -np.inf for i in idx])
     scaled = np.zeros(len(names))
@@ -317,8 +321,9 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
         problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
     except cp.error.SolverError as exc:
         raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
-    if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
-        raise SolverFailure("the sign constraints and the ties cannot all hold together")
+    if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):  # homogeneous: a numerical failure
+        raise SolverFailure("the tied least-squares refit was reported infeasible, though all zero satisfies the "
+                            "signs and ties: a numerical failure; rescale the data or drop a tie")
     if problem.status != cp.OPTIMAL:
         raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
     scaled[idx] = c.value

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from cvxid.errors import CvxidError
 from cvxid.model.equation import ModelSpec
+from cvxid.model.library import Library
 
 Tie = tuple[str, str, float]
 
@@ -84,3 +85,11 @@ class SystemSpec:
         """System coefficients (column name → value) as one mapping per equation."""
         return {label: {n: float(coefficients.get(self.column(label, n), 0.0)) for n in s.column_names}
                 for label, s in self.equations.items()}
+
+    def selected(self, keep) -> "SystemSpec":
+        """The system with each library cut to the terms whose columns are in ``keep``;
+        ties lose the columns that left."""
+        equations = {label: s.with_library(Library(t for t in s.library if self.column(label, t.name) in keep))
+                     for label, s in self.equations.items()}
+        names = set(SystemSpec(equations).column_names)
+        return SystemSpec(equations, tuple(t for t in self.ties if t[0] in names and t[1] in names))
