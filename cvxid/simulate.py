@@ -113,7 +113,7 @@ class CoupledSystem:
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Coefficients ``(T, 1)``, inertias and delay gains ``(C, 1)``: a batch of one for
-        :func:`integrate_coupled`."""
+        :func:`integrate`."""
         return (np.concatenate([eq.coefficients for eq in self.equations])[:, None],
                 np.array([[eq.mass] for eq in self.equations]), np.array([[eq.delay_gain] for eq in self.equations]))
 
@@ -168,22 +168,6 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | lis
                      np.array([system.tau]), np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]),
                      _delayed_index(system), system.derivative, system.history)
     return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
-
-
-def integrate_coupled(system: CoupledSystem, t: np.ndarray, forces: np.ndarray, coefs: np.ndarray, mass: np.ndarray,
-                      delay_gain: np.ndarray, tau: np.ndarray, x0: np.ndarray,
-                      v0: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A batch of ``B`` variants of ``system``'s structure at once: ``forces`` ``(2n-1, C)``
-    at the RK4 nodes and midpoints of ``t`` (one step per sample), ``coefs`` ``(T, B)``
-    (every equation's terms in order), ``mass`` and ``delay_gain`` ``(C, B)``, ``tau``
-    ``(B,)``, initial states ``(C, B)``.  Returns positions and velocities ``(n, C, B)``."""
-    h = float(t[1] - t[0])
-    if np.any(np.asarray(tau) < h):
-        raise CvxidError(f"the delay {np.min(tau):g} s is shorter than the step {h:g} s")
-    coords = [eq.coordinate for eq in system.equations]
-    return integrate(t, lambda fine, step: np.asarray(forces, float)[:, :, None], coords,
-                     [eq.terms for eq in system.equations], coefs, mass, delay_gain, np.asarray(tau, float), x0, v0,
-                     _delayed_index(system), system.derivative, system.history)
 
 
 def _delayed_index(system: CoupledSystem) -> int:

@@ -240,3 +240,18 @@ def test_coupled_selection_without_test_data_cross_validates():
     coefficients = result.system.coefficients
     assert coefficients["alpha:theta'"] == pytest.approx(-coefficients["theta:theta'"], rel=1e-9)
     assert result.physical["k_s"] == pytest.approx(1.3, rel=0.02)
+
+
+def test_coupled_selection_without_test_data_may_drop_terms():
+    raw = _raw()
+    raw.pop("diagnose")
+    raw["data"].pop("test")
+    raw["data"]["train"]["simulate"]["duration"] = 15.0
+    for equation in raw["model"]["equation"]:
+        equation["library"]["terms"] += ["theta", "theta^3"]
+    raw["model"]["tie"] = raw["model"]["tie"][1:]  # the inertia tie only
+    raw["fit"] = {"estimator": "lasso", "lambdas": {"min": 1e-4, "max": 1e1, "count": 12}, "window": 1.0}
+    result = run(parse_problem(raw, SPEC.parent))
+    assert min(len(m.spec.library) for m in result.system.models.values()) < 5  # the path dropped terms
+    coefficients = result.system.coefficients
+    assert coefficients["alpha:alpha''"] == pytest.approx(coefficients["theta:theta''"], rel=1e-9)

@@ -127,7 +127,7 @@ def _identify(spec) -> RunResult:
     if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
         system = system.selected([n for n, k in zip(problem.names, keep) if k])
         regression = regression.subset(system.column_names)
-        validation = validation.subset(system.column_names)
+        validation = validation.subset(system.column_names) if validation is not None else None
         problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
         keep = np.ones(problem.k, bool)
     ensemble = None
