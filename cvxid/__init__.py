@@ -2,9 +2,13 @@
 
 The main entry points:
 
-* :func:`load_problem` and :func:`run` — a TOML problem spec in, a :class:`RunResult` out;
-* :class:`Experiment`, :class:`Regression`, :class:`Problem`, :class:`Path` — the stages;
-* :func:`compare`, :func:`residuals`, :func:`diagnose`, :func:`refine` — model checking.
+* :func:`load_problem` and :func:`run` — a TOML problem spec (a :class:`SystemSpec` of one
+  or several equations) in, a :class:`RunResult` out (its :class:`IdentifiedSystem`, and
+  for one equation its :class:`IdentifiedModel`);
+* :class:`Experiment`, :class:`RegressionBuilder`, :class:`Regression`, :class:`Problem`,
+  :class:`Path`, :class:`Bootstrap` — the stages;
+* :func:`compare`, :func:`residuals`, :func:`diagnose`, :func:`refine`, :func:`polish` —
+  model checking and the output-error fit.
 """
 
 from cvxid.app.result import RunResult
