@@ -200,3 +200,11 @@ def test_one_run_transforms_each_record_once(monkeypatch):
     assert [s.added for s in result.refinement.steps] == ["coulomb"]
     assert counts["builders"] == 2 and counts["profiles"] == 2
     assert counts["problems"] <= 10
+
+
+def test_version(capsys):
+    import cvxid
+
+    with pytest.raises(SystemExit) as done:
+        main(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out.strip() == f"cvxid {cvxid.__version__}"

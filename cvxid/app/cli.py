@@ -11,6 +11,7 @@ import argparse
 import sys
 import warnings
 
+from cvxid import __version__
 from cvxid.errors import CvxidError
 
 
@@ -58,6 +59,7 @@ def main(argv=None) -> int:
         prog="cvxid",
         description="Identify nonlinear systems with time delay from data, as convex problems (cvxpy).",
     )
+    parser.add_argument("--version", action="version", version=f"cvxid {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="identify the model of a problem spec")
     p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md)")
