@@ -206,17 +206,27 @@ def test_model_files_written_by_the_previous_release_load_and_simulate_as_before
     assert system.compare(test)["fit_percent"].to_dict() == pytest.approx(fits, abs=1e-9)
 
 
-def test_coupled_selection_keeps_its_libraries_through_the_diagnosis():
-    """After the lasso selects each equation's terms, the diagnosis adds effects to the
-    selected model; terms the path dropped do not come back (as before the redesign)."""
+def _lasso_with_extra_terms(test: bool):
+    """The flexible joint on 15 s, theta and theta^3 added to both libraries, the inertia tie
+    only, selected by the lasso (with or without a test experiment)."""
     raw = _raw()
     raw["data"]["train"]["simulate"]["duration"] = 15.0
-    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    if test:
+        raw["data"]["test"]["simulate"]["duration"] = 8.0
+    else:
+        raw.pop("diagnose")
+        raw["data"].pop("test")
     for equation in raw["model"]["equation"]:
         equation["library"]["terms"] += ["theta", "theta^3"]
     raw["model"]["tie"] = raw["model"]["tie"][1:]  # the inertia tie only
     raw["fit"] = {"estimator": "lasso", "lambdas": {"min": 1e-4, "max": 1e1, "count": 12}, "window": 1.0}
-    result = run(parse_problem(raw, SPEC.parent))
+    return run(parse_problem(raw, SPEC.parent))
+
+
+def test_coupled_selection_keeps_its_libraries_through_the_diagnosis():
+    """After the lasso selects each equation's terms, the diagnosis adds effects to the
+    selected model; terms the path dropped do not come back (as before the redesign)."""
+    result = _lasso_with_extra_terms(test=True)
     libraries = {label: set(m.spec.library.names) for label, m in result.system.models.items()}
     added = {s["term"] for s in result.refinement.steps}
     support = {k.partition(":")[2] for k, v in result.system.coefficients.items() if v != 0}
@@ -243,15 +253,7 @@ def test_coupled_selection_without_test_data_cross_validates():
 
 
 def test_coupled_selection_without_test_data_may_drop_terms():
-    raw = _raw()
-    raw.pop("diagnose")
-    raw["data"].pop("test")
-    raw["data"]["train"]["simulate"]["duration"] = 15.0
-    for equation in raw["model"]["equation"]:
-        equation["library"]["terms"] += ["theta", "theta^3"]
-    raw["model"]["tie"] = raw["model"]["tie"][1:]  # the inertia tie only
-    raw["fit"] = {"estimator": "lasso", "lambdas": {"min": 1e-4, "max": 1e1, "count": 12}, "window": 1.0}
-    result = run(parse_problem(raw, SPEC.parent))
+    result = _lasso_with_extra_terms(test=False)
     assert min(len(m.spec.library) for m in result.system.models.values()) < 5  # the path dropped terms
     coefficients = result.system.coefficients
     assert coefficients["alpha:alpha''"] == pytest.approx(coefficients["theta:theta''"], rel=1e-9)
