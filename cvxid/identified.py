@@ -23,6 +23,7 @@ from cvxid.errors import CvxidError
 from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
+from cvxid.regression.history import measured_past, padded, start_index
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import (
     CoupledSystem,
@@ -113,9 +114,20 @@ class IdentifiedModel:
         parts = [f"{c:+.6g} {n}" for n, c in self.coefficients.items() if c != 0.0]
         return " ".join(parts) + f" = {self.spec.input}"
 
-    def simulate(self, experiment: Experiment, x0: float, v0: float, history: str | None = None):
-        """Free-run simulation under the experiment's measured input."""
-        return simulate(self.system(history), experiment.time, experiment.input(self.spec.input), x0, v0)
+    def simulate(self, experiment: Experiment, x0: float | None = None, v0: float | None = None,
+                 history: str | None = None) -> tuple[np.ndarray, np.ndarray]:
+        """Free-run simulation under the experiment's measured input, from the state
+        ``(x0, v0)`` at its start (estimated from the data by default).  With the measured
+        history (:mod:`cvxid.regression.history`) it starts at :math:`t_0 + \\tau_{\\max}`;
+        the samples before are NaN."""
+        system, delay = self.system(history), self.spec.delay
+        k = start_index(experiment, delay, system.history)
+        t, y = experiment.time[k:], experiment.output(self.spec.coordinate)[k:]
+        guess = initial_state(t, y)
+        past = measured_past(experiment, delay.coordinate, delay.derivative) if k else None
+        x, v = simulate(system, t, experiment.input(self.spec.input)[k:], guess[0] if x0 is None else x0,
+                        guess[1] if v0 is None else v0, past=past)
+        return padded(x, k), padded(v, k)
 
     def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
         """Physical parameters, beside the truth when it is known."""
@@ -303,12 +315,15 @@ class IdentifiedSystem:
     def simulate(self, experiment: Experiment, initial: dict | None = None) -> dict[str, np.ndarray]:
         """Free-run simulation of every coordinate under ``experiment``'s inputs, from
         ``initial`` (coordinate → (position, velocity)) or the state estimated from the data."""
-        t = experiment.time
-        initial = initial or {c: initial_state(t, experiment.output(c)) for c in self.coordinates}
-        inputs = [experiment.input(m.spec.input) for m in self.models.values()]
-        x, _ = simulate_coupled(self.system(), t, inputs, {c: v[0] for c, v in initial.items()},
-                                {c: v[1] for c, v in initial.items()})
-        return x
+        system, delay = self.system(), next(iter(self.specs.values())).delay
+        k = start_index(experiment, delay, system.history if delay is not None else None)
+        t = experiment.time[k:]
+        initial = initial or {c: initial_state(t, experiment.output(c)[k:]) for c in self.coordinates}
+        inputs = [experiment.input(m.spec.input)[k:] for m in self.models.values()]
+        past = measured_past(experiment, delay.coordinate, delay.derivative) if k else None
+        x, _ = simulate_coupled(system, t, inputs, {c: v[0] for c, v in initial.items()},
+                                {c: v[1] for c, v in initial.items()}, past=past)
+        return {c: padded(values, k) for c, values in x.items()}
 
     def compare(self, experiment: Experiment) -> pd.DataFrame:
         """Free-run fit (%) and RMS error of every coordinate on ``experiment``; a
@@ -324,7 +339,7 @@ class IdentifiedSystem:
                 rows.append({"coordinate": c, "fit_percent": -np.inf, "rms": np.inf})
             else:
                 rows.append({"coordinate": c, "fit_percent": fit_percent(y, sim[c]),
-                             "rms": float(np.sqrt(np.mean((sim[c] - y) ** 2)))})
+                             "rms": float(np.sqrt(np.nanmean((sim[c] - y) ** 2)))})
         return pd.DataFrame(rows).set_index("coordinate")
 
     # ------------------------------------------------------------------ JSON

@@ -14,5 +14,8 @@ import numpy as np
 
 
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
-    """The normalised fit (%) of ``yhat`` to ``y``."""
+    """The normalised fit (%) of ``yhat`` to ``y`` over the samples ``yhat`` covers (a
+    simulation that starts after the record's start is NaN before it)."""
+    covered = ~np.isnan(yhat)
+    y, yhat = np.asarray(y)[covered], np.asarray(yhat)[covered]
     return float(100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - np.mean(y))))

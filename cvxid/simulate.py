@@ -15,9 +15,16 @@ The method is the classical fixed-step Runge–Kutta method.  The delayed state 
 a history buffer by cubic Hermite interpolation between stored nodes (position with
 velocity, or velocity with acceleration), which keeps the method fourth-order accurate for
 any :math:`\tau \ge h`; a delay shorter than the sample step is resolved by sub-steps, and
-one shorter than a step acts on the current state.  Before :math:`t = 0` the feedback sees
-either nothing (``history = "zero"``: the loop is closed at :math:`t=0`, as in the paper's
-simulator) or the initial position held constant (``history = "initial"``).
+one shorter than a step acts on the current state.  Before the first sample the feedback
+reads
+
+* ``history = "measured"``: a given past signal (``past``: a function of time returning the
+  delayed signal and its slope, e.g. the smoothed measurement before the simulation's
+  start), interpolated like the simulated history, so the simulation is smooth in
+  :math:`\tau`;
+* ``history = "zero"``: nothing (the loop is closed at :math:`t=0`, as in the paper's
+  simulator);
+* ``history = "initial"``: the initial position held constant.
 
 Parameters may be given for a batch of ``B`` systems at once; one pass then simulates all
 of them, which is what a finite-difference Jacobian needs.  Terms the compiled kernel knows
@@ -35,6 +42,7 @@ from numba import njit
 from scipy.interpolate import CubicSpline
 
 from cvxid.errors import CvxidError
+from cvxid.model.delay import HISTORIES
 from cvxid.model.terms import (
     AbsProduct,
     Constant,
@@ -44,12 +52,14 @@ from cvxid.model.terms import (
     velocity_symbol,
 )
 
-HISTORIES = ("zero", "initial")
+
 MAX_SUBSTEPS = 16
 """Most integration steps per sample that a short delay may ask for."""
 DIVERGED = 1e8
 
 Force = Callable[[np.ndarray], np.ndarray] | np.ndarray
+Past = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
+"""The delayed signal before the start: times -> (values, slopes)."""
 
 
 class SimulationDiverged(CvxidError):
@@ -120,12 +130,13 @@ class CoupledSystem:
 
 # ---------------------------------------------------------------------- entry points
 def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndarray, v0: float | np.ndarray,
-             substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+             substeps: int = 1, past: Past | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Positions and velocities at the sample ``time`` (uniform, from its first value).
 
     ``force`` is a function of time (its value ``(S,)`` or, for a batch, ``(S, B)``) or
-    samples on ``time`` (then interpolated by a cubic spline between samples).  Returns
-    arrays of shape ``(n,)``, or ``(n, B)`` for a batch.
+    samples on ``time`` (then interpolated by a cubic spline between samples); ``past``
+    the delayed signal before ``time[0]`` (``history = "measured"``).  Returns arrays of
+    shape ``(n,)``, or ``(n, B)`` for a batch.
     """
     coefs = np.atleast_2d(np.asarray(system.coefficients, dtype=float))
     batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain), np.size(x0),
@@ -140,7 +151,7 @@ def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndar
     X, V = integrate(
         t, forces, [system.coordinate], [tuple(system.terms)], np.broadcast_to(coefs, (batch, coefs.shape[1])).T,
         row(system.mass), row(system.gain), row(system.tau)[0], row(x0), row(v0), 0, system.derivative,
-        system.history, substeps,
+        system.history, substeps, past,
     )
     xs, vs = X[:, 0, :], V[:, 0, :]
     single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.mass))
@@ -150,10 +161,10 @@ def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndar
 
 
 def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | list[Force], x0: dict,
-                     v0: dict) -> tuple[dict, dict]:
+                     v0: dict, past: Past | None = None) -> tuple[dict, dict]:
     """Positions and velocities of every coordinate at the sample ``time``.  ``force`` is
     the shared input (a function of time or samples on ``time``) or a list of one input
-    per equation, scaled by each equation's ``input_gain``."""
+    per equation, scaled by each equation's ``input_gain``; ``past`` as in :func:`simulate`."""
     t = np.asarray(time, float)
     coords = [eq.coordinate for eq in system.equations]
     gains = np.array([eq.input_gain for eq in system.equations])
@@ -166,7 +177,7 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | lis
     coefs, mass, delay_gain = system.arrays()
     X, V = integrate(t, forces, coords, [eq.terms for eq in system.equations], coefs, mass, delay_gain,
                      np.array([system.tau]), np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]),
-                     _delayed_index(system), system.derivative, system.history)
+                     _delayed_index(system), system.derivative, system.history, past=past)
     return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
 
 
@@ -181,13 +192,14 @@ def _delayed_index(system: CoupledSystem) -> int:
 def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], coordinates: list[str],
               terms: list[tuple[Term, ...]], coefs: np.ndarray, mass: np.ndarray, gain: np.ndarray, tau: np.ndarray,
               x0: np.ndarray, v0: np.ndarray, delayed: int, derivative: int = 0, history: str = "zero",
-              substeps: int = 1) -> tuple[np.ndarray, np.ndarray]:
+              substeps: int = 1, past: Past | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The one integrator.  ``C`` coordinates, ``B`` variants: ``terms[i]`` are equation
     ``i``'s terms, ``coefs`` ``(T, B)`` all equations' coefficients in order, ``mass`` and
     ``gain`` (of the delayed feedback) ``(C, B)``, ``tau`` ``(B,)``, initial states
     ``(C, B)``; ``forces(fine, h)`` gives each equation's input at the RK4 nodes and
     midpoints ``fine`` of step ``h``, broadcastable to ``(S, C, B)``; ``delayed`` is the
-    index of the fed-back coordinate, ``derivative`` 0 (position) or 1 (velocity).
+    index of the fed-back coordinate, ``derivative`` 0 (position) or 1 (velocity);
+    ``past`` the fed-back signal before ``t[0]`` for ``history = "measured"``.
     Returns positions and velocities ``(n, C, B)`` at the samples ``t``."""
     if history not in HISTORIES:
         raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{history}'")
@@ -214,10 +226,11 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, float), (C, B)))
     v0 = np.ascontiguousarray(np.broadcast_to(np.asarray(v0, float), (C, B)))
     fill = x0[delayed].copy() if (history == "initial" and derivative == 0) else np.zeros(B)
+    past_values, past_slopes = _past_nodes(history, past, t[0], tau, h, np.any(gain != 0))
     coefs = np.ascontiguousarray(coefs, float)
     codes = _term_codes(coordinates, terms)
     args = (F, np.ascontiguousarray(mass), coefs, np.ascontiguousarray(gain), delayed, derivative, offs, ws, instant,
-            fill, x0, v0, h, steps)
+            fill, past_values, past_slopes, x0, v0, h, steps)
     if codes is not None:
         X, V, failed = _kernel(*codes, *args)
     else:
@@ -228,6 +241,22 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
             "is unstable under this input; check its coefficients"
         )
     return X[::substeps], V[::substeps]
+
+
+def _past_nodes(history: str, past: Past | None, start: float, tau: np.ndarray, h: float,
+                fed_back: bool) -> tuple[np.ndarray, np.ndarray]:
+    """The past signal and its slope at the nodes ``start - j h`` that the longest delay
+    reads (oldest first), or empty arrays when the history is assumed."""
+    if history != "measured" or not fed_back:
+        return np.zeros(0), np.zeros(0)
+    if past is None:
+        raise CvxidError(
+            'history = "measured" reads the fed-back signal before the start: pass past= (see '
+            'cvxid.regression.history), or simulate with history "zero" or "initial"'
+        )
+    nodes = start - h * np.arange(int(np.ceil(np.max(tau) / h)) + 2, 0, -1)
+    values, slopes = past(nodes)
+    return np.ascontiguousarray(values, float), np.ascontiguousarray(slopes, float)
 
 
 def half_steps(force: Force, t: np.ndarray, h: float, steps: int) -> np.ndarray:
@@ -297,14 +326,20 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 
 # ---------------------------------------------------------------------- kernels
 @njit(cache=True)
-def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, X, V, A, steps):
+def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps):
     """:math:`q_d^{(r)}(t_k + c h - \\tau)` from the history buffer (or before t = 0)."""
     if instant[b]:
         return x[d] if q == 0 else v[d]
     i = k + offs[ci, b]
     w0 = ws[ci, 0, b]
+    P = Hy.size
+    if P > 0 and i < 0:  # the measured past: Hermite between its nodes (node 0 is the start)
+        y1, d1 = Hy[P + i + 1] if i + 1 < 0 else 0.0, Hd[P + i + 1] if i + 1 < 0 else 0.0
+        if i + 1 == 0:
+            y1, d1 = (X[0, d, b], V[0, d, b]) if q == 0 else (V[0, d, b], A[0, d, b])
+        return w0 * Hy[P + i] + ws[ci, 1, b] * Hd[P + i] + ws[ci, 2, b] * y1 + ws[ci, 3, b] * d1
     # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
-    if i < 0 or (i == 0 and w0 == 1.0 and ci == 2):
+    if i < 0 or (i == 0 and w0 == 1.0 and ci == 2 and P == 0):
         return fill[b]
     j = min(i, steps - 1)
     if q == 0:
@@ -314,9 +349,9 @@ def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, X, V, A, steps
 
 @njit(cache=True)
 def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill,
-           X, V, A, steps, out):
+           Hy, Hd, X, V, A, steps, out):
     C = x.size
-    qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, X, V, A, steps)
+    qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps)
     for e in range(C):
         out[e] = F[s, e, b] + gain[e, b] * qd
     for m in range(eqs.size):
@@ -338,7 +373,8 @@ def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gai
 
 
 @njit(cache=True)
-def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill, x0, v0, h, steps):
+def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h,
+            steps):
     """RK4 with a Hermite history of the delayed coordinate, one variant of the batch at a
     time (compiled)."""
     C, B = x0.shape
@@ -352,17 +388,17 @@ def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
         X[0, :, b], V[0, :, b] = x, v
         for k in range(steps):
             _accel(b, 2 * k, x, v, k, 0, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant,
-                   fill, X, V, A, steps, a1)
+                   fill, Hy, Hd, X, V, A, steps, a1)
             A[k, :, b] = a1
             x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
             _accel(b, 2 * k + 1, x2, v2, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, X, V, A, steps, a2)
+                   instant, fill, Hy, Hd, X, V, A, steps, a2)
             x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
             _accel(b, 2 * k + 1, x3, v3, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, X, V, A, steps, a3)
+                   instant, fill, Hy, Hd, X, V, A, steps, a3)
             x4, v4 = x + h * v3, v + h * a3
             _accel(b, 2 * k + 2, x4, v4, k, 2, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, X, V, A, steps, a4)
+                   instant, fill, Hy, Hd, X, V, A, steps, a4)
             x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
             v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
             X[k + 1, :, b], V[k + 1, :, b] = x, v
@@ -373,7 +409,7 @@ def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
     return X, V, failed
 
 
-def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, x0, v0, h, steps):
+def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
     """The same scheme in Python, vectorised over the batch, for terms the compiled kernel
     does not know (a user's own :class:`~cvxid.model.terms.Term`)."""
     C, B = x0.shape
@@ -384,13 +420,23 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, ins
     rows = np.cumsum([0] + [len(t) for t in terms])
     y_hist, d_hist = (X, V) if q == 0 else (V, A)
 
+    P = Hy.size
+
+    def node(j):  # node j of the fed-back signal: the measured past before the start (j < 0)
+        inside = np.clip(j, 0, steps)
+        if P == 0:
+            return y_hist[inside, d, cols], d_hist[inside, d, cols]
+        before = np.clip(P + j, 0, P - 1)
+        return (np.where(j < 0, Hy[before], y_hist[inside, d, cols]),
+                np.where(j < 0, Hd[before], d_hist[inside, d, cols]))
+
     def delayed(x, v, k, ci):
         w0, w1, w2, w3 = ws[ci]
         i = k + offs[ci]
-        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2))
-        j = np.clip(i, 0, steps - 1)
-        out = (w0 * y_hist[j, d, cols] + w1 * d_hist[j, d, cols] + w2 * y_hist[j + 1, d, cols]
-               + w3 * d_hist[j + 1, d, cols])
+        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2)) if P == 0 else np.zeros(B, bool)
+        j = np.clip(i, -P, steps - 1)
+        (y0, d0), (y1, d1) = node(j), node(j + 1)
+        out = w0 * y0 + w1 * d0 + w2 * y1 + w3 * d1
         return np.where(instant, x[d] if q == 0 else v[d], np.where(early, fill, out))
 
     def accel(s, x, v, k, ci):

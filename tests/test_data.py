@@ -103,7 +103,9 @@ def test_gaps_split_into_segments_and_restart_the_integrals():
     parts = e.segments()
     assert [p.n for p in parts] == [150, 240]
     model = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
-    with_gap = RegressionBuilder(model, e, "savgol").at(None)
-    stacked = RegressionBuilder(model, parts, "savgol").at(None)
+    with_gap = RegressionBuilder(model, e, "savgol", window="record").at(None)
+    stacked = RegressionBuilder(model, parts, "savgol", window="record").at(None)
     np.testing.assert_array_equal(with_gap.P, stacked.P)
     assert with_gap.shape[0] == 390  # the 10 missing samples are not interpolated
+    windowed = RegressionBuilder(model, e, "savgol", window=0.3).at(None)  # no window straddles the gap
+    assert windowed.shape[0] == sum(p.n - 31 + 1 for p in parts)  # 31-sample windows, one per shift

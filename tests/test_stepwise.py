@@ -13,7 +13,7 @@ from .conftest import ROOT
 def _hidden_friction(**fit):
     raw = tomllib.loads((ROOT / "problems" / "hidden_friction.toml").read_text())
     raw.pop("diagnose")
-    raw["model"]["library"] = {"terms": ["x", "x'", "sign(x')", "x^3", "x'^3", "x^2"]}
+    raw["model"]["library"] = {"terms": ["x", "x'", "sign(x')", "x^3", "x'^3", "x^2"], "select": True}
     raw["fit"] = {"estimator": "stepwise_oe", **fit}
     return parse_problem(raw, ROOT / "problems")
 
@@ -29,6 +29,16 @@ def test_stepwise_picks_the_friction_and_nothing_else():
     assert list(history["action"])[:2] == ["start", "add"] and history["term"][1] == "sign(x')"
     assert history["rms"].iloc[-1] < 0.1 * history["rms"].iloc[0]  # the simulation error falls
     assert result.to_dict()["stepwise"]["history"][1]["term"] == "sign(x')"
+
+
+def test_stepwise_refuses_listed_terms_it_may_not_select():
+    raw_spec = _hidden_friction()
+    raw = tomllib.loads((ROOT / "problems" / "hidden_friction.toml").read_text())
+    raw.pop("diagnose")
+    raw["fit"] = {"estimator": "stepwise_oe"}
+    with pytest.raises(CvxidError, match="select = true"):
+        run(parse_problem(raw, ROOT / "problems"))
+    assert raw_spec.model.listed == ()
 
 
 def test_stepwise_refuses_settings_it_replaces():

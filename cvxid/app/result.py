@@ -23,6 +23,7 @@ from cvxid.identify.output_error import PolishResult
 from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import Stepwise
+from cvxid.regression.windows import Windows
 from cvxid.regression.algebraic import AlgebraicOrders
 from cvxid.spec.problem import ProblemSpec
 
@@ -52,6 +53,7 @@ class RunResult:
     velocity_scores: dict | None = None
     stepwise: Stepwise | None = None
     lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
+    window: Windows | None = None  # the algebraic operation's windows (None: the whole record)
     test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
 
     @property
@@ -109,6 +111,7 @@ class RunResult:
             "test_mse": self.test_mse,
             "estimator": fit.estimator,
             "velocity": fit.velocity,
+            "window": "record" if self.window is None else self.window.as_dict(),
             "seconds": self.seconds,
             "warnings": self.warnings,
             "tau": self.tau,
@@ -188,6 +191,9 @@ class RunResult:
     def summary(self) -> str:
         return self._coupled_summary() if self.coupled else self._single_summary()
 
+    def _windows(self) -> str:
+        return "whole-record integrals" if self.window is None else str(self.window)
+
     def _single_summary(self) -> str:
         frame = self.table()
         if self.bootstrap is not None and self.bootstrap.physical is not None:
@@ -199,7 +205,7 @@ class RunResult:
             f"  identified: {self.model.equation()}",
             f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
             f"  lambda = {self.model.lam:.3g} ({fit.estimator}, solver {self.problem.solver}, "
-            f"velocity {fit.velocity})",
+            f"velocity {fit.velocity}, {self._windows()})",
             (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
              else "  test MSE: no test experiment ([data.test]) to score on"),
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
@@ -221,6 +227,7 @@ class RunResult:
         lines = [f"cvxid: {self.spec.name} ({len(system.models)} coupled equations, identified jointly)"]
         lines += [f"  {m.equation()}" for m in system.models.values()]
         lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in system.ties]
+        lines.append(f"  algebraic operation: {self._windows()}")
         lines.append(f"  tau = {system.tau:.5g}"
                      + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
         if self.test is not None:

@@ -45,7 +45,7 @@ from cvxid.metrics import fit_percent
 from cvxid.model.system import SystemSpec
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
-from cvxid.regression.velocity import ESTIMATORS, initial_state
+from cvxid.regression.velocity import ESTIMATORS
 from cvxid.simulate import SimulationDiverged
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -94,6 +94,9 @@ def _identify(spec) -> RunResult:
                                            or fit.loss != "squared"):
         raise CvxidError('estimator = "stepwise_oe" selects the terms itself: remove [fit] orders, bootstrap and '
                          'loss, and [diagnose]')
+    if fit.estimator == "stepwise_oe" and any(spec.listed for spec in system.equations.values()):
+        raise CvxidError('estimator = "stepwise_oe" selects terms, but the listed terms are estimated, never '
+                         'selected: add [model.library] select = true, or use estimator = "lstsq"')
     if not one and fit.estimator == "stepwise_oe":
         raise CvxidError('estimator = "stepwise_oe" is for one equation; a coupled spec selects with "lasso", '
                          '"stlsq" or "lstsq"')
@@ -103,7 +106,7 @@ def _identify(spec) -> RunResult:
     if fit.orders:
         system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
     rows = SystemBuilder(system.equations, train, velocity, fit.window)
-    test_rows = SystemBuilder(system.equations, test, velocity, fit.window) if test else None
+    test_rows = SystemBuilder(system.equations, test, velocity, rows.window) if test else None
     if fit.estimator == "stepwise_oe":
         return _stepwise(spec, rows, test_rows, train, test)
     whole, whole_system = (fit_support(system, rows, solver=fit.solver) if system.exact else None), system
@@ -167,7 +170,7 @@ def _identify(spec) -> RunResult:
         tau_info["method"] = "joint profile"
     out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
                     float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info,
-                    lam=None if fit.estimator == "lstsq" else best.lam)
+                    lam=None if fit.estimator == "lstsq" else best.lam, window=rows.window)
     if spec.diagnose is not None:
         _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":
@@ -202,7 +205,7 @@ def _compare(out: RunResult):
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):
     """Diagnose → add → refit (one equation: :func:`~cvxid.diagnosis.equation.refine`;
     coupled: :func:`~cvxid.diagnosis.coupled.refine_joint`), on the run's own transformed data."""
-    settings, window = spec.diagnose, spec.fit.window
+    settings, window = spec.diagnose, rows.window
     steps = settings.max_steps if settings.refine else 0
     if out.test is None:
         if out.coupled:
@@ -232,16 +235,14 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
 
 COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, starts=0, final_iterations=10)
 """A coupled system's polish schedule: one start, a coarser first step (a coupled record
-is long and every coordinate is simulated; measured on the flexible joint), starting
-states estimated at the full sample rate."""
+is long and every coordinate is simulated; measured on the flexible joint)."""
 
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
     profile's."""
     if out.coupled:
-        initial = ({c: initial_state(out.train.time, out.train.output(c)) for c in out.system.coordinates},)
-        out.polish = polish(out.system, out.train, initial=initial, **COUPLED_POLISH)
+        out.polish = polish(out.system, out.train, **COUPLED_POLISH)
     else:
         out.polish = polish(out.system, out.train)
     out.system = out.polish.system
@@ -272,7 +273,7 @@ def _stepwise(spec: ProblemSpec, rows: SystemBuilder, test_rows: SystemBuilder |
     estimate = model.tau if model.tau is not None else model.physical.get("tau")
     tau_info = None if spec.model.delay is None else {"estimate": estimate, "interval": None, "method": "output_error"}
     out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), tau=tau_info,
-                    stepwise=search)
+                    stepwise=search, window=rows.window)
     _score(out, test_rows)
     return out
 

@@ -58,7 +58,7 @@ def _with(specs: dict[str, ModelSpec], terms: Sequence[Term]) -> dict[str, Model
 
 
 def diagnose_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
-                   velocity: str = "savgol", window: float | None = None,
+                   velocity: str = "savgol", window: float | str | None = "auto",
                    builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> pd.DataFrame:
     """The candidates ranked by the test equation error of the joint refit with each one
     (column ``ratio``: below 1 the effect explains part of the error).  ``builders`` of
@@ -66,8 +66,7 @@ def diagnose_joint(result: IdentifiedSystem, train: Experiment, test: Experiment
     specs = result.specs
     terms = candidate_terms(specs, candidates)
     union = _with(specs, list(terms.values()))
-    train_rows, test_rows = builders or (SystemBuilder(specs, train, velocity, window),
-                                         SystemBuilder(specs, test, velocity, window))
+    train_rows, test_rows = builders or _builders(specs, train, test, velocity, window)
     fitted = train_rows.at(result.tau, union)
     scored = test_rows.at(result.tau, union)
     base = [f"{label}:{n}" for label, s in specs.items() for n in s.column_names]
@@ -144,15 +143,14 @@ class JointRefinement:
 
 def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
                  min_improvement: float = 0.2, max_steps: int = 5, velocity: str = "savgol",
-                 window: float | None = None,
+                 window: float | str | None = "auto",
                  builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> JointRefinement:
     """Add the best-ranked effect and re-identify (delay profiled again) while the effect's
     ratio, the test equation error and the test simulation error all fall by
     ``min_improvement``.  ``builders`` of the train and test data may be passed to reuse
     their columns."""
     out = JointRefinement(result)
-    train_rows, test_rows = builders or (SystemBuilder(result.specs, train, velocity, window),
-                                         SystemBuilder(result.specs, test, velocity, window))
+    train_rows, test_rows = builders or _builders(result.specs, train, test, velocity, window)
     equation_error = equation_mse(result, test_rows)
     sim_error = simulation_error(result, test)
     for _ in range(max_steps + 1):
@@ -179,3 +177,9 @@ def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, 
                           "tau": trial.tau})
         out.result, equation_error, sim_error = trial, new_equation, new_sim
     return out
+
+
+def _builders(specs, train, test, velocity, window) -> tuple[SystemBuilder, SystemBuilder]:
+    """The train and test builders, the test data on the training data's windows."""
+    rows = SystemBuilder(specs, train, velocity, window)
+    return rows, SystemBuilder(specs, test, velocity, rows.window)

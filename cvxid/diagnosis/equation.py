@@ -37,7 +37,8 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
 from cvxid.model.terms import DelayedSignal, Term
 from cvxid.regression.builder import RegressionBuilder
-from cvxid.regression.velocity import initial_state, savgol_window
+from cvxid.regression.history import start_index
+from cvxid.regression.velocity import savgol_window
 from cvxid.simulate import SimulationDiverged, integrate
 
 COLLINEAR = 0.9
@@ -79,15 +80,18 @@ class Comparison:
 def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None = None,
             x0: float | None = None, v0: float | None = None) -> Comparison:
     """Free-run and ``k_step``-ahead fit of ``model`` on ``experiment`` (k-step default:
-    a tenth of a second of samples)."""
+    a tenth of a second of samples).  The free run starts from ``(x0, v0)`` (estimated
+    from the data by default) where the simulation starts: at the record's start, or with
+    the measured history at :math:`t_0 + \\tau_{\\max}` (the comparison covers the
+    simulated samples only)."""
     y = experiment.output(model.spec.coordinate)
-    guess = initial_state(experiment.time, y)
-    x0 = guess[0] if x0 is None else x0
-    v0 = guess[1] if v0 is None else v0
     k = k_step or k_step_samples(experiment.dt)
+    start = start_index(experiment, model.spec.delay)
     try:
         sim, _ = model.simulate(experiment, x0, v0)
-        free, nrmse, message = fit_percent(y, sim), float(np.linalg.norm(y - sim) / np.linalg.norm(y - y.mean())), ""
+        sim = sim[start:]
+        free, nrmse, message = fit_percent(y[start:], sim), float(np.linalg.norm(y[start:] - sim)
+                                                                / np.linalg.norm(y[start:] - y[start:].mean())), ""
     except SimulationDiverged as exc:
         sim, free, nrmse, message = None, None, None, f"free run: {exc}"
     try:
@@ -95,7 +99,8 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     except SimulationDiverged as exc:
         ahead = None
         message = (message + "; " if message else "") + f"k-step: {exc}"
-    return Comparison(experiment.time, y, sim, free, nrmse, k, ahead, message)
+    return Comparison(experiment.time[start:], y[start:], sim, free, nrmse, k, ahead, message)
+
 
 
 K_STEP_SECONDS = 0.1
@@ -126,9 +131,10 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
     numeric = system.system()
     d = numeric.delayed
     feedback = _measured_delayed(numeric.tau, numeric.history, numeric.derivative, t, smooth[d], vel[d])
-    splines = [CubicSpline(t, experiment.input(m.spec.input) + eq.delay_gain * feedback)
+    first = int(np.argmax(np.isfinite(feedback)))  # a measured history: predictions start where it is known
+    splines = [CubicSpline(t[first:], (experiment.input(m.spec.input) + eq.delay_gain * feedback)[first:])
                for m, eq in zip(system.models.values(), numeric.equations)]
-    starts = np.arange(0, len(t) - 1, k)
+    starts = np.arange(first, len(t) - 1, k)
     local = t[: k + 1] - t[0]
     B, C = starts.size, len(coords)
     coefs, mass, _ = numeric.arrays()
@@ -142,8 +148,8 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
                      np.array([smooth[c][starts] for c in coords]), np.array([vel[c][starts] for c in coords]), 0)
     out = {}
     for j, c in enumerate(coords):
-        pred = np.empty_like(t)
-        pred[0] = smooth[c][0]
+        pred = np.full_like(t, np.nan)
+        pred[first] = smooth[c][first]
         for b, s in enumerate(starts):
             stop = min(s + k, len(t) - 1)
             pred[s + 1 : stop + 1] = X[1 : stop - s + 1, j, b]
@@ -153,10 +159,11 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
 
 def _measured_delayed(tau: float, history: str, derivative: int, t: np.ndarray, x: np.ndarray,
                       v: np.ndarray) -> np.ndarray:
-    r"""The delayed signal :math:`x^{(q)}(t-\tau)` read from (smoothed) measurements (before
-    the record: zero, or the first sample with ``history = "initial"``)."""
+    r"""The delayed signal :math:`x^{(q)}(t-\tau)` read from (smoothed) measurements; before
+    the record NaN (``history = "measured"``: unknown), zero, or the first sample
+    (``"initial"``)."""
     lagged = np.interp(t - tau, t, x if derivative == 0 else v)
-    lagged[t - t[0] < tau] = 0.0 if history == "zero" else x[0]
+    lagged[t - t[0] < tau - 1e-9 * (t[1] - t[0])] = {"measured": np.nan, "zero": 0.0}.get(history, x[0])
     return lagged
 
 
@@ -229,7 +236,8 @@ def residuals(model: IdentifiedModel, experiment: Experiment) -> Residuals:
     for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
         r = r + c * term.evaluate(states)
     r = r - _measured_feedback(system, experiment.time, x, v)
-    return Residuals(experiment.time, r, x, v, experiment.input(spec.input))
+    known = np.isfinite(r)  # a measured history: rows whose delayed argument precedes the record are dropped
+    return Residuals(experiment.time[known], r[known], x[known], v[known], experiment.input(spec.input)[known])
 
 
 # ---------------------------------------------------------------------- diagnosis
@@ -302,7 +310,7 @@ def diagnose(
     test: Experiment | None = None,
     candidates: Sequence[str] | None = None,
     velocity: str = "savgol",
-    window: float | None = None,
+    window: float | str | None = "auto",
     builders: tuple[RegressionBuilder, RegressionBuilder | None] | None = None,
 ) -> Diagnosis:
     """Rank ``candidates`` (catalogue names or term names) missing from ``model``
@@ -312,7 +320,8 @@ def diagnose(
     terms = _candidate_terms(spec, candidates if candidates is not None else default_candidates(spec))
     extended = replace(spec, library=spec.library + list(terms.values()))
     train_rows, test_rows = builders or (None, None)
-    reg = _builder(spec, train, velocity, window, train_rows).at(model.tau, extended)
+    train_rows = _builder(spec, train, velocity, window, train_rows)
+    reg = train_rows.at(model.tau, extended)
     names = list(reg.names)
     used = [names.index(n) for n in spec.column_names if model.coefficients.get(n, 0.0) != 0.0]
     scale = np.sqrt(np.mean(reg.P**2, axis=0))
@@ -327,7 +336,7 @@ def diagnose(
         err[name] = float((g @ r) ** 2 / max((g @ g) * (r @ r), 1e-300))
     drops = {}
     if test is not None:
-        treg = _builder(spec, test, velocity, window, test_rows).at(model.tau, extended)
+        treg = _builder(spec, test, velocity, train_rows.window, test_rows).at(model.tau, extended)
         base = Problem.from_regression(reg, spec.nonnegative)
         mask = np.zeros(len(names), bool)
         mask[used] = True
@@ -420,7 +429,7 @@ class Refinement:
 
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
-          velocity: str = "savgol", lam: float = 0.0, window: float | None = None,
+          velocity: str = "savgol", lam: float = 0.0, window: float | str | None = "auto",
           builder: RegressionBuilder | None = None) -> IdentifiedModel:
     """Least squares of ``spec`` on the named columns (plus the unpenalised ones); an exact
     delay is profiled again on that support (``builder``: the train data's, to reuse)."""
@@ -442,7 +451,7 @@ def refine(
     min_improvement: float = 0.2,
     max_steps: int = 5,
     velocity: str = "savgol",
-    window: float | None = None,
+    window: float | str | None = "auto",
     builders: tuple[RegressionBuilder, RegressionBuilder] | None = None,
 ) -> Refinement:
     """Repeat diagnose → add the best effect → refit while the test equation error falls
@@ -450,7 +459,7 @@ def refine(
     data may be passed to reuse their columns."""
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(model.spec, train, velocity, window, train_rows)
-    test_rows = _builder(model.spec, test, velocity, window, test_rows)
+    test_rows = _builder(model.spec, test, velocity, train_rows.window, test_rows)
     steps, diagnoses = [], []
     candidates = list(candidates) if candidates is not None else None
     for _ in range(max_steps):
@@ -501,7 +510,7 @@ def _test_mse(model: IdentifiedModel, test_rows: RegressionBuilder) -> float:
     return reg.mse(np.array([model.coefficients[n] for n in reg.names]))
 
 
-def _builder(spec: ModelSpec, experiment: Experiment, velocity: str, window: float | None,
+def _builder(spec: ModelSpec, experiment: Experiment, velocity: str, window: float | str | None,
              given: RegressionBuilder | None) -> RegressionBuilder:
     """The builder passed in, or a new one for ``spec`` on ``experiment``."""
     return given if given is not None else RegressionBuilder(spec, experiment, velocity, window)

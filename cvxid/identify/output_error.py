@@ -14,11 +14,17 @@ coordinate are adjusted to minimise
 with scipy's ``least_squares`` (ties between columns hold: a tied coefficient is a
 multiple of its partner).  The equation-error estimate is biased by noise in the velocity
 columns and by nearly collinear columns; the simulation error is not, because only the
-measured coordinates are compared.  A forward-difference Jacobian needs one simulation per
-parameter: they run as one batch through the compiled integrator, so a Jacobian costs
-about one simulation's Python overhead.  The simulation uses a step of about ``step``
+measured coordinates are compared.  The Jacobian (forward differences, central in
+:math:`\tau`) needs one simulation per parameter: they run as one batch through the
+compiled integrator, so a Jacobian costs about one simulation's Python overhead.  With the measured history
+(:mod:`cvxid.regression.history`) every simulation starts at :math:`t_0 + \tau_{\max}` from
+the measured past, so the simulation error is smooth in :math:`\tau` and so is its
+derivative.  The simulation uses a step of about ``step``
 seconds (a whole number of samples), which keeps RK4 accurate while the record is long.
-Standard errors come from the Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}`.
+Standard errors come from the Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}\, n/n_{\rm eff}`,
+where :math:`n_{\rm eff}` counts the independent residuals (their autocorrelation, as in
+the delay profile): a model error or a smoothed measurement colours the residual, and
+white-noise standard errors would then be far too small.
 
 Parameters are physical (a Taylor delay's shares are written back into its columns).  For
 one equation they are named ``m``, the terms' physical names, ``tau``, ``gain``, ``x0`` and
@@ -39,9 +45,13 @@ from scipy.optimize import least_squares
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.identify.profile import effective_rows
+from cvxid.regression.history import measured_past, start_index
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import SimulationDiverged, half_steps, integrate
 
+JACOBIAN_STEP = 1e-5
+"""Relative step of the finite-difference Jacobian."""
 STARTS = 5
 """Delays tried as starting points besides the estimate (the simulation error has local
 minima in tau)."""
@@ -130,7 +140,7 @@ def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float
             sim = system.simulate(e)
         except SimulationDiverged:
             return float("inf")
-        errors += [sim[c] - e.output(c) for c in system.coordinates]
+        errors += [(sim[c] - e.output(c))[np.isfinite(sim[c])] for c in system.coordinates]
     return float(np.sqrt(np.mean(np.concatenate(errors) ** 2)))
 
 
@@ -164,12 +174,18 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
             cache[key] = problem.residuals(theta[None, :])[:, 0]
         return cache[key]
 
-    def jac(theta):
-        h = 1e-6 * np.maximum(np.abs(theta), 1e-3)
-        r = problem.residuals(np.vstack([theta, theta + np.diag(h)]))
+    central = [problem.names.index("tau")] if "tau" in problem.names else []
+
+    def jac(theta):  # forward differences, central in the delay
+        h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
+        steps = np.diag(h)
+        r = problem.residuals(np.vstack([theta, theta + steps, theta - steps[central]]))
         cache.clear()
         cache[theta.tobytes()] = r[:, 0]
-        return (r[:, 1:] - r[:, :1]) / h
+        k = theta.size
+        J = (r[:, 1:k + 1] - r[:, :1]) / h
+        J[:, central] = (r[:, 1:k + 1][:, central] - r[:, k + 1:]) / (2 * h[central])
+        return J
 
     before = float(np.sqrt(np.mean(fun(problem.start) ** 2)))
     sol = least_squares(fun, problem.start, jac=jac, bounds=problem.bounds, method="trf", x_scale="jac",
@@ -178,8 +194,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     dof = max(r.size - theta.size, 1)
-    try:
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof
+    try:  # coloured residuals carry fewer independent samples than they have
+        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof * r.size / effective_rows(r)
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
         se = np.full(theta.size, np.nan)
@@ -196,14 +212,18 @@ class _Problem:
         self.base, self.experiments = system, experiments
         self.one = system.single is not None
         self.stride = max(1, int(round(step / experiments[0].dt)))
-        for e in experiments:
-            if e.time[::self.stride].size < 20:
-                raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         self.systems = {label: m.system() for label, m in system.models.items()}
         self.coordinates = system.coordinates
         gains = [float(s.gain) for s in self.systems.values()]
         delay = next(iter(system.specs.values())).delay
         self.delay = delay if delay is not None and any(gains) else None
+        history = next(iter(self.systems.values())).history
+        self.starts = [start_index(e, self.delay, history) for e in experiments]  # the measured history
+        self.pasts = [measured_past(e, delay.coordinate, delay.derivative) if k else None
+                      for e, k in zip(experiments, self.starts)]
+        for e, k in zip(experiments, self.starts):
+            if e.time[k::self.stride].size < 20:
+                raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         coefficients = system.coefficients
         columns = {}  # system column -> parameter slot
         names, start, lower, gain_names = [], [], [], []
@@ -238,8 +258,9 @@ class _Problem:
                 start.append(float(self.systems[label].gain))
                 lower.append(-np.inf)
         for i, e in enumerate(experiments):
-            guess = initial[i] if initial is not None else {
-                c: initial_state(e.time[::self.stride], e.output(c)[::self.stride]) for c in self.coordinates}
+            k = self.starts[i]
+            guess = initial[i] if initial is not None else {  # at the full sample rate
+                c: initial_state(e.time[k:], e.output(c)[k:]) for c in self.coordinates}
             for c in self.coordinates:
                 names += [self._state(c, i, 0), self._state(c, i, 1)]
                 start += list(guess[c])
@@ -295,16 +316,17 @@ class _Problem:
         delayed = self.coordinates.index(self.delay.coordinate) if self.delay is not None else 0
         out = []
         for i, e in enumerate(self.experiments):
-            t = e.time[::self.stride]
-            inputs = [e.input(m.spec.input)[::self.stride] for m in self.base.models.values()]
+            k = self.starts[i]
+            t = e.time[k::self.stride]
+            inputs = [e.input(m.spec.input)[k::self.stride] for m in self.base.models.values()]
             x0 = np.array([values[self._state(c, i, 0)] for c in self.coordinates])
             v0 = np.array([values[self._state(c, i, 1)] for c in self.coordinates])
-            Y = np.column_stack([e.output(c)[::self.stride] for c in self.coordinates])
+            Y = np.column_stack([e.output(c)[k::self.stride] for c in self.coordinates])
             try:
                 X, _ = integrate(
                     t, lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None],
                     self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
-                    any_system.derivative, any_system.history)
+                    any_system.derivative, any_system.history, past=self.pasts[i])
                 out.append((X - Y[:, :, None]).reshape(-1, B))
             except SimulationDiverged:
                 out.append(np.full((Y.size, B), 1e6))

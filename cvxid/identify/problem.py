@@ -200,6 +200,8 @@ class Problem:
         lam = float(lam)
         if not np.isfinite(lam) or lam < 0:
             raise CvxidError(f"lambda must be a finite number >= 0, got {lam}")
+        if not self._rest.size:  # nothing penalised or constrained: the least squares, no solver
+            return self._finish(lam, self._full(np.zeros(0)), "optimal", 0.0)
         self.lam.value = lam
         start = time.perf_counter()
         error = self._attempt(SOLVER_SETTINGS[self.solver])

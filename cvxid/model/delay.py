@@ -26,6 +26,11 @@ from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.model.terms import Derivative
 
 METHODS = ("taylor", "exact")
+HISTORIES = ("measured", "zero", "initial")
+"""What the feedback read before a simulation's start: the measured signal (see
+:mod:`cvxid.regression.history`), nothing, or the initial position held."""
+ASSUMED = ("zero", "initial")
+"""Histories that need no data: what a simulated truth may assume before its start."""
 
 
 @dataclass(frozen=True)
@@ -51,7 +56,7 @@ class DelayedFeedback:
     method: str = "taylor"
     tau_max: float = 0.5
     tau_min: float = 0.0
-    history: str = "zero"
+    history: str = "measured"
 
     def __post_init__(self):
         if self.derivative not in (0, 1):
@@ -74,8 +79,8 @@ class DelayedFeedback:
             raise CvxidError(
                 f"[model.delay] taylor_order must be at least 1, got {self.taylor_order}"
             )
-        if self.history not in ("zero", "initial"):
-            raise CvxidError(f"[model.delay] history must be 'zero' or 'initial', got '{self.history}'")
+        if self.history not in HISTORIES:
+            raise CvxidError(f"[model.delay] history must be one of {', '.join(HISTORIES)}, got '{self.history}'")
         if not 0 <= self.tau_min < self.tau_max:
             raise CvxidError(
                 f"[model.delay] needs 0 <= tau_min < tau_max, got {self.tau_min} and {self.tau_max}"

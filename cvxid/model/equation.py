@@ -20,7 +20,7 @@ from cvxid.model.delay import DelayedFeedback
 from cvxid.model.library import Library
 from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
 
-INERTIA, DELAY, LIBRARY = "inertia", "delay", "library"
+INERTIA, DELAY, LIBRARY, LISTED = "inertia", "delay", "library", "listed"
 
 
 @dataclass(frozen=True)
@@ -36,7 +36,8 @@ class Column:
 
     @property
     def penalty(self) -> float:
-        """Weight of the L1 penalty: 0 on inertia and delay columns, 1 on the library."""
+        """Weight of the L1 penalty: 1 on the library's candidates, 0 on inertia, delay and
+        listed columns (estimated, never selected away)."""
         return 1.0 if self.group == LIBRARY else 0.0
 
 
@@ -79,6 +80,7 @@ class ModelSpec:
     orders: tuple[int | None, int | None] = (None, None)
     keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
     others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
+    listed: tuple[str, ...] = ()  # library terms the user listed: estimated, never selected away
 
     def __post_init__(self):
         known = set(self.column_names)
@@ -111,7 +113,7 @@ class ModelSpec:
         if self.inertia:
             cols[self.inertia_term.name] = Column(self.inertia_term, INERTIA)
         for term in self.library:
-            group = DELAY if term.name in delay_names else LIBRARY
+            group = DELAY if term.name in delay_names else (LISTED if term.name in self.listed else LIBRARY)
             cols.setdefault(term.name, Column(term, group))
         if self.delay:
             for term in self.delay.taylor_terms():
@@ -149,6 +151,7 @@ class ModelSpec:
             self,
             library=library,
             nonnegative=tuple(n for n in self.nonnegative if n in keep),
+            listed=tuple(n for n in self.listed if n in keep),
             names={k: v for k, v in self.names.items() if parse_term(_bare(v)[1], self.coordinates).name in keep},
         )
 

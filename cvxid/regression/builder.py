@@ -28,30 +28,32 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import DelayedSignal, Term
-from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform
+from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, RestartTransform, WindowedTransform
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import estimate_velocity
+from cvxid.regression.windows import Windows, resolve_window
 
 
-def _windows(experiment: Experiment, window: float | None) -> list[np.ndarray]:
-    """Sample indices of consecutive restart windows (the whole record without ``window``).
+ROWS = 2000
+"""Windowed rows wanted per record: one every tenth of a window, denser on short records."""
 
-    The integrals of the algebraic operation restart in each window, so their polynomial
-    weights stay bounded on long records (and any offset cannot grow over the whole record).
-    """
-    n = experiment.n
-    if window is None:
-        return [np.arange(n)]
-    length = int(round(window / experiment.dt))
-    if length < 10:
-        raise CvxidError(f"the restart window ({window:g} s) holds fewer than 10 samples; lengthen it")
-    return [np.arange(s, min(s + length, n)) for s in range(0, n - length // 2, length)]
+
+def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | None):
+    """The algebraic operation on the ``windows``, or on the whole record (``None``)."""
+    if windows is None:
+        return AlgebraicTransform(time, orders)
+    dt = float((time[-1] - time[0]) / (time.size - 1))
+    length = int(round(windows.seconds / dt))
+    if windows.kind == "restart":
+        return RestartTransform(time, orders, length)
+    length = length // 2 * 2 + 1
+    return WindowedTransform(time, orders, length, max(1, min((length - 1) // 10, (time.size - length) // ROWS)))
 
 
 class _Block:
     """One restart window of one segment: its transform, rows and cached columns."""
 
-    def __init__(self, transform: AlgebraicTransform, rows: np.ndarray, segment: int, target: np.ndarray):
+    def __init__(self, transform, rows: np.ndarray, segment: int, target: np.ndarray):
         self.transform, self.rows, self.segment, self.target = transform, rows, segment, target
         self.columns: dict[str, np.ndarray] = {}
 
@@ -61,17 +63,14 @@ class RegressionBuilder:
     only in its library (the coordinate, input, inertia, delay and algebraic orders fix the
     transform)."""
 
-    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | None = None):
+    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | str | None = "auto"):
         self.model = model
         self.velocity = velocity
         exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
         self.experiments = [segment for e in exps for segment in e.segments()]  # integrals restart after gaps
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
-        if window is not None and not window > 2 * self.start:
-            raise CvxidError(
-                f"the restart window ({window:g} s) must be longer than twice tau_max ({self.start:g} s)"
-            )
+        self.window = resolve_window(window, model, self.experiments)
         orders = AlgebraicOrders.for_model(model)
         self._states: list[dict[str, np.ndarray]] = []
         self._splines: list[CubicSpline | None] = []
@@ -90,13 +89,12 @@ class RegressionBuilder:
                 )
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
-            for rows in _windows(e, window):
-                keep = rows[e.time[rows] >= e.time[rows[0]] + self.start - 1e-9 * e.dt]
-                transform = AlgebraicTransform(e.time[keep], orders)
-                p = transform.column(e.input(model.input)[keep])
-                if not model.inertia:
-                    p = p - model.mass * transform.column(e.output(model.coordinate)[keep], 2)
-                self.blocks.append(_Block(transform, keep, i, p))
+            keep = np.flatnonzero(e.time >= e.time[0] + self.start - 1e-9 * e.dt)  # the delayed signal is measured
+            transform = _transform(e.time[keep], orders, self.window)
+            p = transform.column(e.input(model.input)[keep])
+            if not model.inertia:
+                p = p - model.mass * transform.column(e.output(model.coordinate)[keep], 2)
+            self.blocks.append(_Block(transform, keep, i, p))
 
     @property
     def delay(self):
@@ -182,7 +180,7 @@ class RegressionBuilder:
 
 
 def build_regression(model: ModelSpec, experiments, velocity: str = "savgol", tau: float | None = None,
-                     window: float | None = None) -> Regression:
+                     window: float | str | None = "auto") -> Regression:
     """Transform one or several experiments (stacked) into a regression for ``model`` (for
     an exact delay, at the delay ``tau``)."""
     return RegressionBuilder(model, experiments, velocity, window).at(tau)
@@ -194,9 +192,17 @@ class SystemBuilder:
     ``"coordinate:term"``; for one, that equation's regression with bare column names."""
 
     def __init__(self, specs: dict[str, ModelSpec], experiments, velocity: str = "savgol",
-                 window: float | None = None):
+                 window: float | str | None = "auto"):
         self.specs = dict(specs)
-        self.builders = {label: RegressionBuilder(spec, experiments, velocity, window) for label, spec in specs.items()}
+        self.builders = {}
+        for label, spec in specs.items():  # every equation on the first one's windows
+            self.builders[label] = RegressionBuilder(spec, experiments, velocity, window)
+            window = self.builders[label].window or "record"
+
+    @property
+    def window(self) -> Windows | None:
+        """The algebraic operation's windows (``None``: the whole record)."""
+        return next(iter(self.builders.values())).window
 
     @property
     def delay(self):

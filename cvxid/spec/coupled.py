@@ -20,7 +20,8 @@ from cvxid.model.library import resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Sign
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.simulate import HISTORIES, CoupledSystem, Equation
+from cvxid.model.delay import ASSUMED
+from cvxid.simulate import CoupledSystem, Equation
 from cvxid.spec.problem import (
     DiagnoseSettings,
     ProblemSpec,
@@ -159,7 +160,7 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
         raise CvxidError(f"spec: [[truth.equation]] must describe every coordinate ({', '.join(coords)}) once")
     if len(inputs) != 1:
         raise CvxidError(f"spec: the truth's equations must share one input (with or without a '-'), got {sorted(inputs)}")
-    history = _string(t, "history", "truth", "zero", choices=HISTORIES)
+    history = _string(t, "history", "truth", "zero", choices=ASSUMED)
     order = {c: i for i, c in enumerate(coords)}
     system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
     return Truth(system, inputs.pop(), system_physical(equations, coefficients, tau, extra))

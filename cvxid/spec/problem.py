@@ -19,13 +19,14 @@ from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
 from cvxid.identify.path import SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
-from cvxid.model.delay import METHODS, DelayedFeedback
+from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.simulate import HISTORIES, CoupledSystem, Equation, simulate_coupled
+from cvxid.regression.windows import KINDS, WINDOWS, Windows
+from cvxid.simulate import CoupledSystem, Equation, simulate_coupled
 
 Table = Mapping[str, Any]
 
@@ -110,7 +111,7 @@ class FitSettings:
     bootstrap: "BootstrapSettings | None" = None
     orders: tuple[int, ...] = ()
     refine: str | None = None
-    window: float | None = None
+    window: float | str = "auto"
     loss: str = "squared"
 
 
@@ -280,11 +281,16 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     its delayed feedback may read."""
     coord = _string(table, "coordinate", where, "x")
     coords = (coord, *others)
-    lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms"})
+    lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms", "select"})
     extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
-    polynomial = None
+    polynomial, listed = None, ()
     if "terms" in lib_t:
         library = Library(parse_term(t, coords) for t in _strings(lib_t, "terms", f"{where}.library"))
+        if not _bool(lib_t, "select", f"{where}.library", False):
+            listed = tuple(library.names)  # the user's terms are estimated, not selected away
+    elif "select" in lib_t:
+        raise CvxidError(f"spec: [{where}.library] select applies to a terms list (an order's library is always "
+                         "selected); remove it or list the terms")
     else:
         order = _number(lib_t, "order", f"{where}.library", 3, positive=True, integer=True)
         polynomial = (order, _bool(lib_t, "cross", f"{where}.library", True), extra)
@@ -306,7 +312,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             method=_string(d, "method", dw, "taylor", choices=METHODS),
             tau_min=_number(d, "tau_min", dw, 0.0),
             tau_max=_number(d, "tau_max", dw, 0.5, positive=True),
-            history=_string(d, "history", dw, "zero", choices=HISTORIES),
+            history=_string(d, "history", dw, "measured", choices=HISTORIES),
         )
         if delay.exact and "taylor_order" in d:
             raise CvxidError(f"spec: [{dw}] taylor_order has no meaning with method = 'exact'; remove it")
@@ -340,6 +346,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         ),
         keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
         others=tuple(others),
+        listed=listed,
     ), polynomial
 
 
@@ -368,9 +375,25 @@ def _fit(table: Table) -> FitSettings:
         bootstrap=_bootstrap(table),
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
-        window=_number(table, "window", where, positive=True) if "window" in table else None,
+        window=_window(table, where),
         loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
     )
+
+
+def _window(table: Table, where: str) -> float | str | Windows:
+    """``[fit] window``: ``"auto"`` (from the data), ``"record"`` (the whole record), seconds
+    (sliding windows) or ``{ restart = seconds }`` / ``{ sliding = seconds }``."""
+    value = table.get("window", "auto")
+    if isinstance(value, str):
+        return _string(table, "window", where, "auto", choices=WINDOWS)
+    if isinstance(value, Mapping):
+        kinds = _table(table, "window", where, set(KINDS))
+        if len(kinds) != 1:
+            raise CvxidError(f"spec: [{where}] window as a table names one kind: {{ restart = 0.05 }} or "
+                             "{ sliding = 0.5 }")
+        ((kind, _),) = kinds.items()
+        return Windows(_number(kinds, kind, f"{where}.window", positive=True), kind)
+    return _number(table, "window", where, positive=True)
 
 
 def _bootstrap(table: Table) -> BootstrapSettings | None:
@@ -418,7 +441,7 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         tau = _number(d, "tau", "truth.delay")
         if tau < 0:
             raise CvxidError(f"spec: [truth.delay] tau must be >= 0, got {tau}")
-    history = _string(t, "history", where, "zero", choices=HISTORIES)
+    history = _string(t, "history", where, "zero", choices=ASSUMED)
     system = CoupledSystem((Equation(coord, mass, tuple(terms), tuple(values), 1.0, gain),), coord, tau, history,
                            derivative)
     physical = {"m": mass}
