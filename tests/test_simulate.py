@@ -74,3 +74,14 @@ def test_user_terms_run_in_the_python_integrator_like_the_compiled_one():
     a, _ = simulate(compiled, T, force, 1.0, 0.0)
     b, _ = simulate(python, T, force, 1.0, 0.0)
     np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_coulomb_friction_sticks_below_its_bound_and_slides_above():
+    """Karnopp's stick-slip: a force below the friction bound leaves the mass at rest (a
+    plain sign would chatter it along); above, it accelerates at (f - F_c) / m."""
+    t = np.arange(0, 2, 1e-3)
+    friction = System((parse_term("sign(x')"),), np.array([1.0]), 2.0)
+    x, v = simulate(friction, t, np.full_like(t, 0.6), 0.0, 0.0)
+    assert np.max(np.abs(x)) < 1e-6 and np.max(np.abs(v)) < 1e-3
+    x, v = simulate(friction, t, np.full_like(t, 3.0), 0.0, 0.0)
+    assert v[-1] == pytest.approx((3.0 - 1.0) / 2.0 * t[-1], rel=1e-3)

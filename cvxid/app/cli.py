@@ -28,6 +28,8 @@ def _run(args) -> int:
 
 
 def _bench(args) -> int:
+    if args.heldout:
+        return _heldout(args)
     if args.accuracy:
         return _accuracy(args)
     from cvxid.tools.bench import run_bench
@@ -42,15 +44,72 @@ def _accuracy(args) -> int:
     from cvxid.spec.load import load_problem
     from cvxid.tools.accuracy import accuracy, summary
 
-    noises = tuple(float(v) for v in args.noises.split(","))
-    frame = accuracy(load_problem(args.spec), noises, args.seeds)
+    noises = tuple(float(v) for v in (args.noises or "0,0.001,0.01,0.05").split(","))
+    if args.seeds and not args.seeds.isdigit():
+        raise CvxidError(f"--seeds with --accuracy is a number of seeds per noise level, got '{args.seeds}'")
+    seeds = int(args.seeds or 5)
+    frame = accuracy(load_problem(args.spec), noises, seeds)
     table = summary(frame)
-    print(f"cvxid bench --accuracy: {args.spec}, {args.seeds} seeds per noise level, true structure, noisy x only")
+    print(f"cvxid bench --accuracy: {args.spec}, {seeds} seeds per noise level, true structure, noisy x only")
     print(table.to_string(float_format=lambda v: f"{v:.3f}"))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump({"runs": frame.to_dict(orient="records"),
                        "summary": table.reset_index().to_dict(orient="records")}, fh, indent=2)
+    return 0
+
+
+def _seeds(text: str) -> list[int]:
+    """``"1000:1010"`` (a range, end excluded), ``"3,7,8"`` or one seed."""
+    try:
+        if ":" in text:
+            start, stop = text.split(":")
+            return list(range(int(start), int(stop)))
+        return [int(v) for v in text.split(",")]
+    except ValueError:
+        raise CvxidError(f"--seeds must be a range like 1000:1010 or a list like 3,7,8, got '{text}'") from None
+
+
+def _heldout(args) -> int:
+    import json
+    import time
+
+    import pandas as pd
+
+    from cvxid.app.report import plain
+    from cvxid.tools.heldout import EFFECTS, by_duration, heldout, summary
+
+    if args.spec:
+        raise CvxidError("--heldout draws its own systems: give no SPEC")
+    seeds = _seeds(args.seeds or "1000:1010")
+    effects = tuple(args.effects.split(",")) if args.effects else EFFECTS
+    noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
+    lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
+    start = time.perf_counter()
+    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
+                       for length in lengths], ignore_index=True)
+    wall = time.perf_counter() - start
+    by = ("duration", "effect", "noise") if len(lengths) > 1 else ("effect", "noise")
+    table = summary(frame, by)
+    print(f"cvxid bench --heldout: seeds {args.seeds or '1000:1010'}, {args.mode} mode, "
+          f"{len(frame)} systems in {wall:.0f} s ({args.jobs} jobs)")
+    print(table.to_string(float_format=lambda v: f"{v:.3g}"))
+    if args.systems:
+        print()
+        print(frame.drop(columns=["error"]).to_string(float_format=lambda v: f"{v:.4g}"))
+    failed = frame[frame["status"] != "ok"]
+    for _, row in failed.iterrows():
+        print(f"  failed: seed {row['seed']} {row['effect']} noise {row['noise']}: {row['error']}")
+    if len(lengths) > 1:
+        pairs = by_duration(frame)
+        print()
+        print(pairs.to_string(float_format=lambda v: f"{v:.3g}"))
+        better = pairs["longest at least as accurate"]
+        print(f"  {max(lengths):g} s at least as accurate on tau as {min(lengths):g} s: {int(better.sum())}/{len(better)}")
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(plain({"seconds": wall, "systems": frame.to_dict(orient="records"),
+                             "summary": table.reset_index().to_dict(orient="records")}), fh, indent=2)
     return 0
 
 
@@ -65,15 +124,29 @@ def main(argv=None) -> int:
     p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md)")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
     p_bench = sub.add_parser("bench", help="time the lambda path against the baselines")
-    p_bench.add_argument("spec")
+    p_bench.add_argument("spec", nargs="?", help="a TOML problem spec (none with --heldout)")
     p_bench.add_argument("--order", type=int, default=None, help="library order (default: the spec's)")
     p_bench.add_argument("--naive-lambdas", type=int, default=5, help="lambdas timed for the naive cvxpy baseline")
     p_bench.add_argument("--jobs", type=int, default=2, help="joblib workers for Algorithm 1")
     p_bench.add_argument("--json", default=None, help="also write the figures to this JSON file")
     p_bench.add_argument("--accuracy", action="store_true", help="delay and parameter errors of four methods")
-    p_bench.add_argument("--seeds", type=int, default=5, help="seeds per noise level (--accuracy)")
-    p_bench.add_argument("--noises", default="0,0.001,0.01,0.05", help="noise levels (--accuracy)")
+    p_bench.add_argument("--seeds", default=None,
+                         help="seeds per noise level (--accuracy, default 5); seeds as 1000:1010 or 3,7,8 "
+                              "(--heldout, default 1000:1010; 0-99 tune, 1000+ report)")
+    p_bench.add_argument("--noises", default=None,
+                         help="noise levels (--accuracy, default 0,0.001,0.01,0.05; --heldout, default drawn)")
+    p_bench.add_argument("--heldout", action="store_true", help="random delayed oscillators cvxid's examples lack")
+    p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all)")
+    p_bench.add_argument("--duration", default=None,
+                         help="record seconds, or several (20,200) to compare the same systems (--heldout, default drawn)")
+    p_bench.add_argument("--mode", default="structure", choices=("structure", "diagnosis"),
+                         help="true terms given, or a base library diagnosed (--heldout)")
+    p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
+    p_bench.add_argument("--keep", default=None, help="keep each system's data, spec and result.json here (--heldout)")
+    p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")
     args = parser.parse_args(argv)
+    if args.command == "bench" and not args.heldout and not args.spec:
+        parser.error("bench needs a SPEC (or --heldout)")
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
         return {"run": _run, "bench": _bench}[args.command](args)

@@ -233,7 +233,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
                                           spec.fit.solver)
 
 
-COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, starts=0, final_iterations=10)
+COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, grid=0, final_iterations=10)
 """A coupled system's polish schedule: one start, a coarser first step (a coupled record
 is long and every coordinate is simulated; measured on the flexible joint)."""
 

@@ -41,20 +41,24 @@ from typing import Sequence
 
 import numpy as np
 from scipy.optimize import least_squares
+from scipy.stats import chi2
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.identify.profile import effective_rows
+from cvxid.identify.profile import DelayProfile, effective_rows
 from cvxid.regression.history import measured_past, start_index
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import SimulationDiverged, half_steps, integrate
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
-STARTS = 5
-"""Delays tried as starting points besides the estimate (the simulation error has local
-minima in tau)."""
+GRID = 21
+"""Delays of the output-error profile across ``[tau_min, tau_max]`` (then a finer grid
+around its best point).  The simulation error has local minima in :math:`\tau`, and with
+an unknown gain whole ranges of delays fit equally well: a local fit cannot see either."""
+PROFILE_ITERATIONS = 12
+"""Iterations of each fixed-delay fit of the profile (warm-started from its neighbour)."""
 
 
 @dataclass(frozen=True)
@@ -69,6 +73,8 @@ class PolishResult:
     initial: tuple[dict[str, tuple[float, float]], ...]  # per experiment: coordinate -> (position, velocity)
     iterations: int
     seconds: float
+    profile: DelayProfile | None = None  # the output-error profile over the delay
+    effective_rows: float = 0.0  # independent residuals (their autocorrelation)
 
     @property
     def model(self) -> IdentifiedModel:
@@ -86,8 +92,14 @@ class PolishResult:
         return next(iter(self.initial[0].values()))[1]
 
     def interval(self, name: str, z: float = 1.96) -> tuple[float, float]:
+        """The 95 % interval (``z`` = 1.96) from the standard error; for the delay, the
+        hull of that and of the profile's interval (every delay whose refitted simulation
+        error is not significantly worse)."""
         value, se = self.parameters[name], self.standard_errors[name]
-        return value - z * se, value + z * se
+        low, high = value - z * se, value + z * se
+        if name == "tau" and self.profile is not None:
+            low, high = min(low, self.profile.interval[0]), max(high, self.profile.interval[1])
+        return low, high
 
 
 def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
@@ -99,35 +111,93 @@ def _experiments(experiments: Experiment | Sequence[Experiment]) -> list[Experim
 
 
 def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
-           max_iterations: int = 200, starts: int = STARTS, final_iterations: int = 50,
+           max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
            initial=None) -> PolishResult:
-    """Output-error polish from the estimated delay and ``starts`` more spread over its
-    range: each start is fitted on a simulation step of about ``coarse_step``, the best is
-    refined at the sample step with ``final_iterations`` more (unless ``final`` is false).
-    ``initial``: each experiment's starting states (see :func:`output_error`)."""
+    """Output-error polish.  With a fed-back delay, first its profile: the simulation
+    error refitted at ``grid`` delays across ``[tau_min, tau_max]`` (each fit warm-started
+    from its neighbour, on a simulation step of about ``coarse_step``) and on a finer grid
+    around the best; then every parameter from the best delay, refined at the sample step
+    with ``final_iterations`` more (unless ``final`` is false).  ``grid = 0`` fits from the
+    estimated delay only.  ``initial``: each experiment's starting states (see
+    :func:`output_error`)."""
     start = time.perf_counter()
     system, experiments = _system(fitted), _experiments(experiments)
-    delay = next(iter(system.specs.values())).delay
-    first = system.tau if system.tau is not None else system.physical.get("tau")
-    taus = [first] + (list(np.linspace(delay.tau_min, delay.tau_max, starts + 2)[1:-1]) if delay else [])
-    taus = [t for t in taus if t is not None] or [None]
-    best = None
-    for tau in taus:
-        trial = system if tau is None else with_tau(system, tau)
-        try:
-            fit = output_error(trial, experiments, initial, step=coarse_step, max_iterations=max_iterations)
-        except CvxidError:
-            continue
-        if best is None or fit.rms_after < best.rms_after:
-            best = fit
-    if best is None:
-        raise CvxidError("the output-error polish failed from every starting delay (diverging simulations)")
+    points = _delay_profile(system, experiments, initial, coarse_step, grid) if grid else {}
+    if points:
+        tau = min(points, key=lambda t: points[t][0])
+        origin = with_tau(points[tau][1].system, tau)
+        initial = points[tau][1].initial
+    else:
+        origin = system
+    try:
+        best = output_error(origin, experiments, initial, step=coarse_step, max_iterations=max_iterations)
+    except CvxidError as exc:
+        raise CvxidError(f"the output-error polish failed ({exc})") from exc
     before = output_rms(system, experiments)
-    if not final:
-        return replace(best, rms_before=before, seconds=time.perf_counter() - start)
-    last = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
-                        max_iterations=final_iterations)
-    return replace(last, rms_before=before, seconds=time.perf_counter() - start)
+    if final:
+        best = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
+                            max_iterations=final_iterations)
+    profile = None
+    if points:
+        points[best.parameters["tau"]] = (best.rms_after, best)
+        profile = _interval(points, best)
+    return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
+
+
+def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, grid: int) -> dict:
+    """Delay -> (simulation RMS, fit) with every other parameter refitted, on ``grid``
+    delays across the delay's range walked outwards from the estimate (each fit starts from
+    its neighbour's), then on a finer grid around the best.  Empty without a fed-back delay."""
+    delay = next(iter(system.specs.values())).delay
+    if delay is None or not any(float(m.system().gain) for m in system.models.values()):
+        return {}
+    taus = np.linspace(delay.tau_min, delay.tau_max, grid)
+    first = system.tau if system.tau is not None else system.physical.get("tau", taus[0])
+    points: dict[float, tuple[float, PolishResult]] = {}
+
+    def walk(sequence, origin, states):
+        for tau in sequence:
+            try:
+                fit = output_error(with_tau(origin, tau), experiments, states, step=step,
+                                   max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
+            except CvxidError:
+                continue
+            points[float(tau)] = (fit.rms_after, fit)
+            origin, states = fit.system, fit.initial
+
+    i = int(np.argmin(np.abs(taus - first)))
+    walk(taus[i:], system, initial)
+    walk(taus[:i][::-1], system, initial)
+    if not points:
+        raise CvxidError("the output-error polish failed at every delay of its profile (diverging simulations)")
+    best = min(points, key=lambda t: points[t][0])
+    spacing = taus[1] - taus[0] if grid > 1 else 0.0
+    fine = np.linspace(max(best - spacing, delay.tau_min), min(best + spacing, delay.tau_max), 9)[1:-1]
+    walk([t for t in fine if t > best], points[best][1].system, points[best][1].initial)
+    walk([t for t in fine[::-1] if t < best], points[best][1].system, points[best][1].initial)
+    return points
+
+
+def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayProfile:
+    r"""The profile's delays whose refitted squared simulation error stays within
+    :math:`\chi^2_1(\text{level})/n_{\rm eff}` of the best (hull, linear crossings)."""
+    taus = np.array(sorted(points))
+    rms = np.array([points[t][0] for t in taus])
+    tau = best.parameters["tau"]
+    n_eff = best.effective_rows
+    bound = best.rms_after**2 * (1 + chi2.ppf(level, 1) / n_eff)
+    inside = np.flatnonzero(rms**2 <= bound)
+    if inside.size == 0:
+        return DelayProfile(taus, rms, tau, (tau, tau), n_eff, "output_error")
+
+    def crossing(i, j):  # from inside point i towards outside neighbour j
+        if j < 0 or j >= taus.size:
+            return taus[i]
+        a, b = rms[i] ** 2, rms[j] ** 2
+        return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
+
+    low, high = crossing(inside[0], inside[0] - 1), crossing(inside[-1], inside[-1] + 1)
+    return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), n_eff, "output_error")
 
 
 def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float:
@@ -158,13 +228,13 @@ def with_tau(fitted: IdentifiedModel | IdentifiedSystem, tau: float):
 
 
 def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float = 1e-3,
-                 max_iterations: int = 30) -> PolishResult:
+                 max_iterations: int = 30, fixed_tau: float | None = None) -> PolishResult:
     """Polish ``fitted`` on ``experiments`` by output error from its own delay (see the
-    module docstring; :func:`polish` adds several starting delays).  ``initial``: each
+    module docstring; :func:`polish` profiles the delay first).  ``initial``: each
     experiment's starting states (coordinate → (position, velocity)), estimated from the
-    data by default."""
+    data by default; ``fixed_tau``: keep the delay at this value."""
     start = time.perf_counter()
-    problem = _Problem(_system(fitted), _experiments(experiments), step, initial)
+    problem = _Problem(_system(fitted), _experiments(experiments), step, initial, fixed_tau)
     cache: dict[bytes, np.ndarray] = {}
 
     def fun(theta):
@@ -201,14 +271,18 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         se = np.full(theta.size, np.nan)
     errors = dict(zip(problem.names, map(float, se)))
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
+    if fixed_tau is not None and problem.delay is not None:
+        errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
-                        problem.initial(theta), int(sol.nfev), time.perf_counter() - start)
+                        problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
+                        effective_rows=effective_rows(r))
 
 
 class _Problem:
     """Parameters ↔ simulations of the system for :func:`output_error`."""
 
-    def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float, initial):
+    def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float, initial,
+                 fixed_tau: float | None = None):
         self.base, self.experiments = system, experiments
         self.one = system.single is not None
         self.stride = max(1, int(round(step / experiments[0].dt)))
@@ -217,6 +291,7 @@ class _Problem:
         gains = [float(s.gain) for s in self.systems.values()]
         delay = next(iter(system.specs.values())).delay
         self.delay = delay if delay is not None and any(gains) else None
+        self.fixed_tau = fixed_tau if self.delay is not None else None
         history = next(iter(self.systems.values())).history
         self.starts = [start_index(e, self.delay, history) for e in experiments]  # the measured history
         self.pasts = [measured_past(e, delay.coordinate, delay.derivative) if k else None
@@ -249,10 +324,11 @@ class _Problem:
                 lower.append(0.0 if term.name in spec.nonnegative else -np.inf)  # the spec's signs hold
             if self.delay is not None and spec.delay.gain is None:
                 gain_names.append(self._name(label, "gain", "gain"))
-        if self.delay is not None:
+        if self.delay is not None and self.fixed_tau is None:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
             lower.append(self.delay.tau_min)
+        if self.delay is not None:
             for label, name in zip(system.models, gain_names):
                 names.append(name)
                 start.append(float(self.systems[label].gain))
@@ -269,7 +345,7 @@ class _Problem:
         self.names = [names[i] for i in keep]
         lower = np.array(lower)[keep]
         upper = np.full(len(self.names), np.inf)
-        if self.delay is not None:
+        if "tau" in self.names:
             upper[self.names.index("tau")] = self.delay.tau_max
         self.bounds = (lower, upper)
         # every start inside its bounds (least_squares refuses one outside), and said so
@@ -294,6 +370,8 @@ class _Problem:
 
     def _values(self, thetas: np.ndarray) -> dict[str, np.ndarray]:
         values = dict(zip(self.names, thetas.T))
+        if self.fixed_tau is not None:
+            values["tau"] = np.full(thetas.shape[0], float(self.fixed_tau))
         for a, (b, f) in self.tied.items():
             values[a] = f * values[b]
         return values

@@ -1,0 +1,418 @@
+r"""``cvxid bench --heldout``: seeded random delayed oscillators that cvxid's examples do not contain.
+
+Each seed draws one system
+
+.. math::
+
+    m\,\ddot x + c\,\dot x + k_1 x + k_3 x^3 + [\text{hidden effect}] = f(t) + b\,x(t-\tau)
+
+(:func:`draw`), simulates a training and a test record of it that start in mid-motion,
+writes them as CSV files with a TOML spec beside them (:func:`write`) and identifies it
+exactly as ``cvxid run`` does (:func:`cvxid.app.run.run` on the spec file, read back
+through ``result.to_dict()``, the content of ``result.json``).  :func:`heldout` runs many
+systems and tabulates the errors; :func:`summary` groups them by effect and noise;
+:func:`by_duration` pairs the same systems recorded for different lengths.
+
+Seeds 0–99 are the TUNING range: look at them while changing cvxid.  Seeds 1000 and up are
+the REPORT range: quote their numbers, never tune on them.
+
+The draw (all uniform unless said):
+
+* mass in [0.5, 2], stiffness ``k1`` in [2, 20], damping ``c`` in [0.1, 1] (relative
+  damping ``c / (2 sqrt(k1 m))`` 0.008 to 0.5), cubic stiffness ``k3`` 0 (one system in
+  three) or in [0, 3];
+* the delayed feedback ``+ b x(t - tau)``: ``|b|`` in [0.3, 0.5] ``k1`` with a random sign,
+  ``tau`` in :data:`TAU_RANGE`;
+* the hidden effect (``coulomb``, ``quadratic_damping``, ``quadratic_stiffness``,
+  ``offset`` or none): a force of :data:`EFFECT_SHARE` of the force scale ``k1 x_rms``;
+* each record's forcing: a multisine (3–6 sines, frequencies log-uniform over
+  :data:`BAND` times ``sqrt(k1/m)``, random phases and weights) or a linear chirp over that
+  band (cvxid's ``quadratic_chirp``, shifted in time), scaled so that the standard
+  deviation of x is a target drawn in [0.3, 1];
+* the record length log-uniform in [5, 200] s (the test record is as long, at most
+  :data:`TEST_DURATION`), ``dt`` = :data:`DT`, white noise of one standard deviation on x
+  and f drawn from :data:`NOISES`.
+
+Every record starts in mid-motion: the truth is simulated (cvxid's RK4, :data:`SUBSTEPS`
+steps per sample) from rest at ``t = -pre`` with ``pre`` in [2, 5] s and only ``t >= 0`` is
+kept, so ``x(0)``, ``x'(0)`` and the delayed feedback before ``t = 0`` are real.  A draw is
+rejected, and the seed's next attempt drawn, when the unforced response from ``x = x_rms``
+does not decay (its peak-to-peak swing over the last :data:`DECAY_WINDOW` s of
+:data:`DECAY_SECONDS` is more than half that over the first), when a record's simulation
+diverges or when its x RMS leaves :data:`X_RMS`.  The parameters drawn for a seed do not
+depend on the effect, noise or length asked for, except through that rejection.
+
+The spec (mode ``"structure"``): the true terms as the library, the exact delay on x with
+the documented default range ``[tau_min, tau_max] = [0, 0.5]`` (it contains
+:data:`TAU_RANGE`), the gain estimated (given with ``known_gain``), ``x'' >= 0``, the
+output-error polish, everything else the documented defaults.  Mode ``"diagnosis"``
+starts from ``x, x', x^3`` without the hidden term and adds ``[diagnose] refine = true``.
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from joblib import Parallel, delayed
+
+from cvxid.app.report import plain
+from cvxid.app.run import run
+from cvxid.data.excitation import excitation
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.model.library import resolve_term
+from cvxid.model.terms import parse_term
+from cvxid.progress import progress
+from cvxid.simulate import SimulationDiverged, System, simulate
+
+TAU_RANGE = (0.05, 0.3)
+EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset")
+EFFECT_SHARE = (0.1, 0.3)
+"""The hidden effect's force as a share of the force scale ``k1 x_rms``."""
+NOISES = (0.001, 0.01, 0.02)
+BAND = (0.3, 2.5)
+"""Forcing frequencies, in units of the natural frequency ``sqrt(k1/m)``."""
+DT = 1e-3
+SUBSTEPS = 4
+TEST_DURATION = 20.0
+X_RMS = (0.15, 2.0)
+TOLERANCE, SCALINGS = 0.15, 8
+"""The forcing is scaled until the standard deviation of x is within ``TOLERANCE`` (relative)
+of its target, in at most ``SCALINGS`` simulations."""
+DECAY_SECONDS, DECAY_WINDOW = 30.0, 5.0
+ATTEMPTS = 50
+BASE_TERMS = ("x", "x'", "x^3")
+MODES = ("structure", "diagnosis")
+
+
+@dataclass(frozen=True)
+class Forcing:
+    """One record's input: cvxid excitation components evaluated at ``t + shift``, and the
+    seconds ``pre`` simulated before the record starts (``t = -pre``)."""
+
+    kind: str  # "multisine" or "chirp"
+    components: tuple[dict, ...]
+    shift: float
+    pre: float
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        return excitation(self.components)(np.asarray(t, float) + self.shift)
+
+    def scaled(self, factor: float) -> Forcing:
+        parts = tuple(dict(c, amplitude=c["amplitude"] * factor) for c in self.components)
+        return Forcing(self.kind, parts, self.shift, self.pre)
+
+
+@dataclass(frozen=True)
+class Oscillator:
+    """A drawn system: ``mass x'' + sum coefficients = f + gain x(t - tau)``, its records'
+    forcings, noise and length."""
+
+    seed: int
+    effect: str
+    mass: float
+    coefficients: tuple[tuple[str, float], ...]  # (term name, value), left-hand side, non-zero only
+    gain: float
+    tau: float
+    noise: float
+    duration: float
+    train: Forcing
+    test: Forcing
+    attempt: int
+
+    @property
+    def terms(self) -> list[str]:
+        return [name for name, _ in self.coefficients]
+
+    @property
+    def truth(self) -> dict[str, float]:
+        """Physical parameters as a run names them (``m``, term names, ``tau``, ``gain``)."""
+        return {"m": self.mass, **dict(self.coefficients), "tau": self.tau, "gain": self.gain}
+
+    @property
+    def system(self) -> System:
+        return _system(self.mass, self.coefficients, self.gain, self.tau)
+
+    def simulate(self, which: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Noise-free time (from 0), x, x' and f of the ``"train"`` or ``"test"`` record."""
+        forcing = self.train if which == "train" else self.test
+        length = self.duration if which == "train" else min(self.duration, TEST_DURATION)
+        return _record(self.system, forcing, length)
+
+    def experiment(self, which: str) -> Experiment:
+        """The measured record: x and f with white noise (seeded by the seed, attempt and record)."""
+        t, x, _, f = self.simulate(which)
+        rng = np.random.default_rng([self.seed, self.attempt, 1 if which == "train" else 2])
+        return Experiment(t, {"x": x + self.noise * rng.standard_normal(t.size)},
+                          {"f": f + self.noise * rng.standard_normal(t.size)}, name=which)
+
+
+def _system(mass: float, coefficients: tuple[tuple[str, float], ...], gain: float, tau: float) -> System:
+    return System(tuple(parse_term(n) for n, _ in coefficients), np.array([v for _, v in coefficients]), mass,
+                  gain=gain, tau=tau)
+
+
+def _record(system: System, forcing: Forcing, duration: float):
+    skip = round(forcing.pre / DT)
+    n = skip + round(duration / DT) + 1
+    t = (np.arange(n) - skip) * DT
+    x, v = simulate(system, t, forcing, 0.0, 0.0, substeps=SUBSTEPS)
+    return np.arange(n - skip) * DT, x[skip:], v[skip:], forcing(t[skip:])
+
+
+def draw(seed: int, effect: str | None = None, noise: float | None = None,
+         duration: float | None = None) -> Oscillator:
+    """The seed's system with the hidden ``effect`` (None or ``"none"``: no hidden effect),
+    its noise level and record length drawn unless given (see the module docstring)."""
+    effect = "none" if effect is None else effect
+    if effect not in EFFECTS:
+        raise CvxidError(f"unknown hidden effect '{effect}'; one of: {', '.join(EFFECTS)}")
+    for attempt in range(ATTEMPTS):
+        oscillator = _attempt(seed, attempt, effect, noise, duration)
+        if oscillator is not None:
+            return oscillator
+    raise CvxidError(f"seed {seed}: no stable system with effect '{effect}' in {ATTEMPTS} attempts")
+
+
+def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration: float | None):
+    rng = np.random.default_rng([seed, attempt])
+    mass, k1, c = rng.uniform(0.5, 2.0), rng.uniform(2.0, 20.0), rng.uniform(0.1, 1.0)
+    k3 = rng.uniform(0.0, 3.0) if rng.uniform() > 1 / 3 else 0.0
+    gain = rng.choice((-1.0, 1.0)) * rng.uniform(0.3, 0.5) * k1
+    tau = rng.uniform(*TAU_RANGE)
+    target = rng.uniform(0.3, 1.0)
+    share, sign = rng.uniform(*EFFECT_SHARE), rng.choice((-1.0, 1.0))
+    drawn_noise = rng.choice(NOISES)
+    drawn_duration = float(np.exp(rng.uniform(np.log(5.0), np.log(200.0))))
+    noise = float(drawn_noise if noise is None else noise)
+    duration = float(drawn_duration if duration is None else duration)
+    omega = np.sqrt(k1 / mass)
+    coefficients = {"x'": c, "x": k1, "x^3": k3}
+    if effect != "none":
+        force, speed = share * k1 * target, omega * target
+        size = {"coulomb": force, "quadratic_damping": force / speed**2, "quadratic_stiffness": sign * force / target**2,
+                "offset": sign * force}[effect]
+        coefficients[resolve_term(effect).name] = size
+    coefficients = tuple((n, float(v)) for n, v in coefficients.items() if v != 0.0)
+    system = _system(mass, coefficients, gain, tau)
+    if not _decays(system, target):
+        return None
+    forcings = []
+    for length in (duration, min(duration, TEST_DURATION)):
+        forcing = _scaled(system, _forcing(rng, omega, length), length, target, k1 * target)
+        if forcing is None:
+            return None
+        forcings.append(forcing)
+    return Oscillator(seed, effect, float(mass), coefficients, float(gain), float(tau), noise, duration, *forcings,
+                      attempt)
+
+
+def _decays(system: System, amplitude: float) -> bool:
+    """The unforced response from ``x = amplitude`` swings less at the end than half as much
+    as at the start."""
+    t = np.arange(0.0, DECAY_SECONDS, 0.01)
+    try:
+        x, _ = simulate(system, t, np.zeros_like(t), amplitude, 0.0, substeps=SUBSTEPS)
+    except SimulationDiverged:
+        return False
+    window = int(DECAY_WINDOW / 0.01)
+    return bool(np.ptp(x[-window:]) < 0.5 * np.ptp(x[:window]))
+
+
+def _forcing(rng: np.random.Generator, omega: float, duration: float) -> Forcing:
+    """A multisine or linear chirp over :data:`BAND` times ``omega``, of unit weights."""
+    pre = rng.uniform(2.0, 5.0)
+    lo, hi = BAND[0] * omega, BAND[1] * omega
+    if rng.uniform() < 0.5:
+        count = int(rng.integers(3, 7))
+        omegas = np.sort(np.exp(rng.uniform(np.log(lo), np.log(hi), count)))
+        parts = tuple({"kind": "sine", "amplitude": float(a), "omega": float(w), "phase": float(p)}
+                      for a, w, p in zip(rng.uniform(0.5, 1.0, count), omegas, rng.uniform(0, 2 * np.pi, count)))
+        return Forcing("multisine", parts, 0.0, pre)
+    # sin(rate s^2) sweeps 2 rate s: from lo at t = -pre to hi at t = duration, with s = t + shift
+    rate = (hi - lo) / (2 * (pre + duration))
+    return Forcing("chirp", ({"kind": "quadratic_chirp", "amplitude": 1.0, "rate": rate},), pre + lo / (2 * rate), pre)
+
+
+def _scaled(system: System, forcing: Forcing, duration: float, target: float, force: float) -> Forcing | None:
+    """``forcing`` scaled to a standard deviation of x within :data:`TOLERANCE` of
+    ``target``: from an RMS of ``force``, then by the ratio of standard deviations, or by
+    bisection once the target is bracketed (friction makes the response jump).  None when
+    the record diverges, the target is not reached in :data:`SCALINGS` simulations or the x
+    RMS leaves :data:`X_RMS`."""
+    t = np.arange(0.0, duration, DT)
+    scale, low, high = force / np.std(forcing(t)), 0.0, np.inf
+    for _ in range(SCALINGS):
+        try:
+            x = _record(system, forcing.scaled(scale), duration)[1]
+            ratio = target / max(float(np.std(x)), 1e-12)
+        except SimulationDiverged:
+            ratio = 0.0  # far too strong
+        if abs(ratio - 1) < TOLERANCE:
+            return forcing.scaled(scale) if X_RMS[0] <= np.sqrt(np.mean(x**2)) <= X_RMS[1] else None
+        low, high = (scale, high) if ratio > 1 else (low, scale)
+        scale = np.sqrt(low * high) if low > 0 and np.isfinite(high) else scale * np.clip(ratio, 0.2, 5.0)
+    return None
+
+
+# ---------------------------------------------------------------------- files
+def _toml(value) -> str:
+    if isinstance(value, str):
+        return json.dumps(value)  # a JSON string is a TOML basic string
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{ " + ", ".join(f"{_toml(k)} = {_toml(v)}" for k, v in value.items()) + " }"
+    return repr(float(value))
+
+
+def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool = False) -> str:
+    """The TOML spec of ``oscillator`` reading ``train.csv`` and ``test.csv`` beside it."""
+    if mode not in MODES:
+        raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
+    o = oscillator
+    terms = o.terms if mode == "structure" else list(BASE_TERMS)
+    delay = {"signal": "x", "method": "exact"} | ({"gain": o.gain} if known_gain else {})
+    tables = {
+        "truth": {"mass": o.mass, "coefficients": dict(o.coefficients),
+                  "delay": {"signal": "x", "gain": o.gain, "tau": o.tau}},
+        **{f"data.{which}": {"file": f"{which}.csv", "time": "t", "output": "x", "input": "f"}
+           for which in ("train", "test")},
+        "model.library": {"terms": terms},
+        "model.delay": delay,
+        "model.constraints": {"nonnegative": ["x''"]},
+        "fit": {"refine": "output_error"},
+        **({"diagnose": {"refine": True}} if mode == "diagnosis" else {}),
+    }
+    lines = [f"name = {_toml(f'heldout_{o.seed}_{o.effect}')}",
+             f"description = {_toml(f'cvxid bench --heldout: seed {o.seed}, attempt {o.attempt}, {mode} mode')}"]
+    for table, keys in tables.items():
+        lines += ["", f"[{table}]"] + [f"{k} = {_toml(v)}" for k, v in keys.items()]
+    return "\n".join(lines) + "\n"
+
+
+def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: bool = False) -> Path:
+    """Write ``train.csv``, ``test.csv`` (columns t, x, f) and ``spec.toml`` into ``folder``;
+    the spec's path."""
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    for which in ("train", "test"):
+        e = oscillator.experiment(which)
+        np.savetxt(folder / f"{which}.csv", np.column_stack([e.time, e.output("x"), e.input("f")]), fmt="%.10g",
+                   delimiter=",", header="t,x,f", comments="")
+    path = folder / "spec.toml"
+    path.write_text(spec_text(oscillator, mode, known_gain), encoding="utf-8")
+    return path
+
+
+# ---------------------------------------------------------------------- runs
+LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
+TRAILING = ["worst other %", "seconds", "status", "error"]
+DIAGNOSIS = ["first effect", "added"]
+
+
+def _error(estimate: float, truth: float) -> float:
+    return 100.0 * (estimate / truth - 1.0)
+
+
+def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
+    """The errors of one run's ``result.json`` content against the truth (a parameter the
+    model lacks counts as 0)."""
+    tau = result["tau"] or {}
+    truth = {k: v for k, v in oscillator.truth.items() if k != "tau" and not (k == "gain" and known_gain)}
+    errors = {f"err % {k}": _error(result["physical"].get(k, 0.0), v) for k, v in truth.items()}
+    interval = tau.get("interval")
+    diagnosis = result.get("diagnosis") or {}
+    return {
+        "tau": tau.get("estimate", np.nan),
+        "tau error %": _error(tau.get("estimate", np.nan), oscillator.tau),
+        "low": interval[0] if interval else np.nan,
+        "high": interval[1] if interval else np.nan,
+        "covers": bool(interval[0] <= oscillator.tau <= interval[1]) if interval else None,
+        **errors,
+        "worst other %": max(abs(v) for v in errors.values()),
+        "seconds": result["seconds"],
+        "first effect": (diagnosis.get("ranking") or [{}])[0].get("effect"),
+        "added": ",".join(step["added"] for step in result.get("refinement") or []),
+    }
+
+
+def run_one(seed: int, effect: str, noise: float | None = None, duration: float | None = None,
+            mode: str = "structure", known_gain: bool = False, keep=None) -> dict:
+    """One system drawn, written and identified by :func:`cvxid.app.run.run`: its row of
+    :func:`heldout`.  Never raises: a failure is a row with ``status = "failed"`` and the
+    exception's type and message.  ``keep``: a folder that keeps each system's files and
+    ``result.json``."""
+    row = {"seed": seed, "effect": effect, "noise": noise, "duration": duration, "status": "ok", "error": ""}
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
+        warnings.simplefilter("ignore")  # run() records cvxid's own warnings itself
+        try:
+            oscillator = draw(seed, effect, noise, duration)
+            row.update({"noise": oscillator.noise, "duration": oscillator.duration, "kind": oscillator.train.kind,
+                        "true tau": oscillator.tau})
+            name = f"{seed}_{oscillator.effect}_{oscillator.noise:g}_{oscillator.duration:.4g}s"
+            folder = Path(keep) / name if keep else Path(scratch)
+            result = run(write(oscillator, folder, mode, known_gain)).to_dict()
+            if keep:
+                (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
+            row.update(_row(result, oscillator, known_gain))
+        except Exception as exc:  # noqa: BLE001  (one system's failure is its row, not the benchmark's)
+            row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
+    return row
+
+
+def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = None, mode: str = "structure",
+            n_jobs: int = 2, keep=None, known_gain: bool = False) -> pd.DataFrame:
+    """Every (seed, effect, noise) drawn and identified, ``n_jobs`` at a time (joblib); one
+    row per system.  A noise or ``duration`` of None is drawn.
+
+    Columns: seed, effect, noise, duration, kind (of the training forcing), true tau, tau,
+    tau error %, the tau interval (low, high, covers), ``err % <parameter>`` for every
+    physical parameter (``m``, term names, ``gain``), worst other %, seconds (of the run),
+    status, error; in diagnosis mode also the first ranked effect and the effects added.
+    """
+    if mode not in MODES:
+        raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
+    cases = [(s, e, n) for s in seeds for e in effects for n in noises]
+    jobs = (delayed(run_one)(s, e, n, duration, mode, known_gain, keep) for s, e, n in cases)
+    rows = list(progress(Parallel(n_jobs=n_jobs, return_as="generator")(jobs), desc="heldout", total=len(cases)))
+    frame = pd.DataFrame(rows)
+    middle = sorted(c for c in frame.columns if c.startswith("err % "))
+    return frame.reindex(columns=LEADING + middle + TRAILING + (DIAGNOSIS if mode == "diagnosis" else []))
+
+
+def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
+    """Per group: systems, failures, median and 90th percentile of |tau error| %, median
+    worst other %, the share of tau intervals that cover the truth (%) and median seconds."""
+    frame = frame.assign(failed=frame["status"] != "ok", abs_tau=frame["tau error %"].abs(),
+                         covered=frame["covers"].astype(float))
+    ok = frame[~frame["failed"]].groupby(list(by), sort=False)
+    return pd.DataFrame({
+        "systems": frame.groupby(list(by), sort=False).size(),
+        "failures": frame.groupby(list(by), sort=False)["failed"].sum(),
+        "|tau err| % median": ok["abs_tau"].median(),
+        "|tau err| % p90": ok["abs_tau"].quantile(0.9),
+        "worst other % median": ok["worst other %"].median(),
+        "covers %": 100 * ok["covered"].mean(),
+        "seconds median": ok["seconds"].median(),
+    })
+
+
+def by_duration(frame: pd.DataFrame) -> pd.DataFrame:
+    """The same systems at several record lengths (``frame`` of :func:`heldout` runs at each
+    length, concatenated) side by side: |tau error| % and worst other % per length, and
+    whether the longest record's tau is at least as accurate as the shortest's."""
+    ok = frame[frame["status"] == "ok"].assign(**{"|tau err| %": lambda f: f["tau error %"].abs()})
+    wide = ok.pivot_table(index=["seed", "effect", "noise"], columns="duration",
+                          values=["|tau err| %", "worst other %"])
+    short, long = min(ok["duration"]), max(ok["duration"])
+    wide[("longest at least as accurate", "")] = wide[("|tau err| %", long)] <= wide[("|tau err| %", short)]
+    return wide

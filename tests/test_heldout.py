@@ -1,0 +1,137 @@
+"""The held-out benchmark (``cvxid bench --heldout``): draws, records, specs, failures, one run."""
+
+import numpy as np
+import pandas as pd
+import pytest
+
+import cvxid.tools.heldout as heldout_module
+from cvxid.app.cli import main
+from cvxid.spec.load import load_problem
+from cvxid.tools.heldout import (
+    BASE_TERMS,
+    EFFECTS,
+    NOISES,
+    TAU_RANGE,
+    X_RMS,
+    by_duration,
+    draw,
+    heldout,
+    summary,
+    write,
+)
+
+EFFECT_TERMS = {"coulomb": "sign(x')", "quadratic_damping": "x'|x'|", "quadratic_stiffness": "x^2", "offset": "1"}
+
+
+def test_a_draw_is_reproducible_and_its_system_independent_of_the_noise_asked_for():
+    first, again = draw(3, "coulomb", duration=6.0), draw(3, "coulomb", duration=6.0)
+    assert first == again
+    assert np.array_equal(first.experiment("train").output("x"), again.experiment("train").output("x"))
+    other = draw(4, "coulomb", duration=6.0)
+    assert other.tau != first.tau
+    quiet, loud = draw(3, "none", noise=0.001, duration=6.0), draw(3, "none", noise=0.02, duration=6.0)
+    assert (quiet.mass, quiet.coefficients, quiet.tau, quiet.train) == (loud.mass, loud.coefficients, loud.tau, loud.train)
+    assert (quiet.noise, loud.noise) == (0.001, 0.02)
+
+
+@pytest.mark.parametrize("effect", EFFECTS)
+def test_drawn_parameters_lie_in_the_stated_ranges(effect):
+    for seed in range(4):
+        o = draw(seed, effect, duration=5.0)
+        k = dict(o.coefficients)
+        assert 0.5 <= o.mass <= 2 and 2 <= k["x"] <= 20 and 0.1 <= k["x'"] <= 1
+        assert 0 < k.get("x^3", 1.0) <= 3
+        assert 0.3 * k["x"] <= abs(o.gain) <= 0.5 * k["x"]
+        assert TAU_RANGE[0] <= o.tau <= TAU_RANGE[1]
+        assert o.noise in NOISES
+        assert (EFFECT_TERMS.get(effect) in k) == (effect != "none")
+        assert len(o.coefficients) == 2 + ("x^3" in k) + (effect != "none")
+        assert o.train.kind in ("multisine", "chirp")
+    o = draw(0, effect, duration=8.0)
+    x = o.simulate("train")[1]
+    assert X_RMS[0] <= np.sqrt(np.mean(x**2)) <= X_RMS[1]
+    assert 0.3 * 0.85 <= np.std(x) <= 1.0 * 1.15  # the forcing scales x to its target
+
+
+def test_record_lengths_are_drawn_in_5_to_200_s():
+    lengths = [draw(seed).duration for seed in range(3)]
+    assert all(5 <= d <= 200 for d in lengths) and len(set(lengths)) == 3
+
+
+def test_records_start_mid_motion():
+    for seed in range(5):
+        o = draw(seed, duration=6.0)
+        for which in ("train", "test"):
+            t, x, v, _ = o.simulate(which)
+            assert t[0] == 0.0 and np.allclose(np.diff(t), 1e-3)
+            assert abs(x[0]) > 1e-3 * np.std(x) and abs(v[0]) > 1e-3 * np.std(v)
+    assert o.train != o.test  # the test record has its own forcing and start
+
+
+def test_the_written_spec_loads_with_the_true_terms(tmp_path):
+    o = draw(2, "quadratic_damping", noise=0.01, duration=6.0)
+    spec = load_problem(write(o, tmp_path / "structure"))
+    assert spec.model.library.names == o.terms and "x'|x'|" in o.terms
+    assert spec.model.delay.exact and spec.model.delay.gain is None
+    assert spec.model.delay.tau_min <= TAU_RANGE[0] and spec.model.delay.tau_max >= TAU_RANGE[1]
+    assert spec.model.nonnegative == ("x''",) and spec.fit.refine == "output_error" and spec.diagnose is None
+    assert spec.truth.physical == pytest.approx({k: v for k, v in o.truth.items() if k != "gain"})
+    train = spec.experiment("train")
+    assert train.time[0] == 0.0 and train.duration == pytest.approx(6.0)
+    assert np.std(train.output("x") - o.simulate("train")[1]) == pytest.approx(0.01, rel=0.05)  # the noise
+    assert spec.experiment("test").n > 0
+    diagnosis = load_problem(write(o, tmp_path / "diagnosis", mode="diagnosis", known_gain=True))
+    assert diagnosis.model.library.names == list(BASE_TERMS) and diagnosis.diagnose.refine
+    assert diagnosis.model.delay.gain == pytest.approx(o.gain)
+
+
+def test_a_failing_system_is_a_row_with_its_error(monkeypatch):
+    class Result:
+        def to_dict(self):
+            return {"physical": {"m": 1.0, "x": 10.0, "x'": 0.5, "gain": 3.0, "tau": 0.1},
+                    "tau": {"estimate": 0.1, "interval": [0.09, 0.11], "method": "output_error"}, "seconds": 0.5}
+
+    def fake_run(path):
+        if "heldout_1_" in path.read_text():
+            raise RuntimeError("boom")
+        return Result()
+
+    monkeypatch.setattr(heldout_module, "run", fake_run)
+    frame = heldout([0, 1], ["none", "bogus"], [0.01], duration=5.0, n_jobs=1)
+    rows = frame.set_index(["seed", "effect"])
+    assert len(rows) == 4
+    assert rows.loc[(0, "none"), "status"] == "ok" and np.isfinite(rows.loc[(0, "none"), "tau error %"])
+    assert rows.loc[(1, "none"), ["status", "error"]].tolist() == ["failed", "RuntimeError: boom"]
+    assert rows.loc[(0, "bogus"), "error"].startswith("CvxidError: unknown hidden effect")
+    table = summary(frame)
+    assert table.loc[("none", 0.01), "systems"] == 2 and table.loc[("none", 0.01), "failures"] == 1
+    assert table.loc[("bogus", 0.01), "failures"] == 2
+
+
+def test_the_same_systems_at_two_lengths_are_paired():
+    frame = pd.DataFrame({"seed": [0, 0, 1, 1, 2], "effect": "none", "noise": 0.01, "duration": [20.0, 200.0] * 2 + [20.0],
+                          "tau error %": [1.0, -0.5, -0.2, 0.4, 3.0], "worst other %": [2.0, 1.0, 1.0, 1.0, 1.0],
+                          "status": ["ok"] * 4 + ["failed"]})
+    pairs = by_duration(frame)
+    assert pairs[("|tau err| %", 200.0)].tolist() == [0.5, 0.4]
+    assert pairs["longest at least as accurate"].tolist() == [True, False]
+
+
+def test_the_command_refuses_a_spec_with_heldout_and_needs_one_without(tmp_path, capsys):
+    assert main(["bench", "--heldout", str(tmp_path / "x.toml")]) == 2
+    assert "give no SPEC" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["bench"])
+
+
+TAU_TOLERANCE = 2.0
+"""Percent, on 10 s records at noise 0.001 (two systems of the tuning range, true terms
+given, gain estimated).  Loose: the README reports a few hundredths of a percent at this
+noise on the paper's system; these two measured 0.87 % (seed 1) and 0.05 % (seed 4)."""
+
+
+@pytest.mark.slow
+def test_short_quiet_records_give_tau():
+    frame = heldout([1, 4], ["none"], [0.001], duration=10.0, n_jobs=2)
+    assert (frame["status"] == "ok").all(), frame["error"].tolist()
+    assert frame["tau error %"].abs().max() < TAU_TOLERANCE, frame["tau error %"].tolist()
