@@ -151,7 +151,8 @@ def _identify(spec) -> RunResult:
         robust, _ = huber_refit(rows.at(tau, system.equations), keep, system.nonnegative, fit.solver,
                                 ties=system.ties)
         coefs = dict(zip(problem.names, np.where(keep, robust.coefficients, 0.0)))
-    lam = 0.0 if fit.estimator == "lstsq" else best.lam  # least squares: no penalty, nothing selected
+    selects = fit.estimator != "lstsq" and bool(problem.penalties.any())  # listed terms only: nothing to select
+    lam = best.lam if selects else 0.0  # least squares: no penalty, nothing selected
     info = {"method": "equation_error", "lambda": lam}
     if profile is not None:
         info["tau_interval"] = list(profile.interval)
@@ -170,7 +171,7 @@ def _identify(spec) -> RunResult:
         tau_info["method"] = "joint profile"
     out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
                     float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info,
-                    lam=None if fit.estimator == "lstsq" else best.lam, window=rows.window)
+                    lam=best.lam if selects else None, window=rows.window)
     if spec.diagnose is not None:
         _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":

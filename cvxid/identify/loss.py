@@ -5,9 +5,9 @@ Huber's loss :math:`\rho(r) = r^2/2` for :math:`|r| \le k\sigma`, :math:`k\sigma
 :math:`w_i = \min(1, k\sigma/|r_i|)` (the residuals of the previous fit, :math:`\sigma`
 their median absolute deviation / 0.6745, :math:`k = 1.345`).  Each iteration is the same
 reduced problem with row weights, so the solver never sees the raw rows and the sign
-constraints still hold.  A spike in the measured signal spreads over the following
-integrated rows; with restart windows (``[fit] window``) it stays in its own window, whose
-rows the weights then discount.
+constraints still hold.  A spike in the measured signal spreads over the rows of the windows
+that contain it (``[fit] window``; over every later row with the whole-record integrals),
+which the weights then discount.
 """
 
 from __future__ import annotations

@@ -2,18 +2,18 @@ r"""The regression builder: one equation's data transformed once, regressions of
 library at any delay.
 
 The algebraic operation (:mod:`cvxid.regression.algebraic`) turns every term into a
-column.  A :class:`RegressionBuilder` holds the transforms of the data (per experiment,
-gap-free segment and restart window) and transforms each term the first time a regression
+column.  A :class:`RegressionBuilder` holds the transforms of the data (per experiment and
+gap-free segment, on the windows of :mod:`cvxid.regression.windows`) and transforms each
+term the first time a regression
 asks for it, so the λ path, the bootstrap, the order search, the delay profile and every
 candidate of the diagnosis read the same transformed columns: the data are transformed
 once per run.  :meth:`RegressionBuilder.at` adds the delayed signal
 :math:`x^{(q)}(t-\tau)` (a cubic spline of the record), as a column when the gain is
 unknown or moved into the target when it is known.
 
-With an exact delay every experiment (and every restart window) restarts its integrals at
-``tau_max`` (the first ``tau_max`` seconds serve as the delayed signal's history), so
-regressions at different delays share their rows and their errors compare.  With
-``window`` (seconds) the integrals restart in consecutive windows (stacked rows).
+With an exact delay every experiment's rows start at ``tau_max`` (the first ``tau_max``
+seconds are the measured history the delayed signal reads; no window needs its own), so
+regressions at different delays share their rows and their errors compare.
 
 :class:`SystemBuilder` stacks the builders of several equations into one block regression
 (columns ``"coordinate:term"``) with a shared delay.
@@ -51,7 +51,7 @@ def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | Non
 
 
 class _Block:
-    """One restart window of one segment: its transform, rows and cached columns."""
+    """One gap-free segment: its transform, the samples it reads and cached columns."""
 
     def __init__(self, transform, rows: np.ndarray, segment: int, target: np.ndarray):
         self.transform, self.rows, self.segment, self.target = transform, rows, segment, target
@@ -103,7 +103,7 @@ class RegressionBuilder:
 
     # ------------------------------------------------------------------ states and columns
     def _state(self, segment: int, symbol: str) -> np.ndarray:
-        """A position, or a velocity (measured or estimated on the whole segment, so restart
+        """A position, or a velocity (measured or estimated on the whole segment, so the
         windows see no edge effects), computed once."""
         states = self._states[segment]
         if symbol not in states:
