@@ -23,7 +23,7 @@ from cvxid.errors import CvxidError
 from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
-from cvxid.regression.history import measured_past, padded, start_index
+from cvxid.regression.history import padded, simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import (
     CoupledSystem,
@@ -121,10 +121,9 @@ class IdentifiedModel:
         history (:mod:`cvxid.regression.history`) it starts at :math:`t_0 + \\tau_{\\max}`;
         the samples before are NaN."""
         system, delay = self.system(history), self.spec.delay
-        k = start_index(experiment, delay, system.history)
+        k, past = simulation_start(experiment, delay, system.history)
         t, y = experiment.time[k:], experiment.output(self.spec.coordinate)[k:]
         guess = initial_state(t, y)
-        past = measured_past(experiment, delay.coordinate, delay.derivative) if k else None
         x, v = simulate(system, t, experiment.input(self.spec.input)[k:], guess[0] if x0 is None else x0,
                         guess[1] if v0 is None else v0, past=past)
         return padded(x, k), padded(v, k)
@@ -316,11 +315,10 @@ class IdentifiedSystem:
         """Free-run simulation of every coordinate under ``experiment``'s inputs, from
         ``initial`` (coordinate → (position, velocity)) or the state estimated from the data."""
         system, delay = self.system(), next(iter(self.specs.values())).delay
-        k = start_index(experiment, delay, system.history if delay is not None else None)
+        k, past = simulation_start(experiment, delay, system.history if delay is not None else None)
         t = experiment.time[k:]
         initial = initial or {c: initial_state(t, experiment.output(c)[k:]) for c in self.coordinates}
         inputs = [experiment.input(m.spec.input)[k:] for m in self.models.values()]
-        past = measured_past(experiment, delay.coordinate, delay.derivative) if k else None
         x, _ = simulate_coupled(system, t, inputs, {c: v[0] for c, v in initial.items()},
                                 {c: v[1] for c, v in initial.items()}, past=past)
         return {c: padded(values, k) for c, values in x.items()}

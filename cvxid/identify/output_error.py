@@ -47,7 +47,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
-from cvxid.regression.history import measured_past, start_index
+from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import SimulationDiverged, half_steps, integrate
 
@@ -264,8 +264,9 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     dof = max(r.size - theta.size, 1)
+    n_eff = effective_rows(r)
     try:  # coloured residuals carry fewer independent samples than they have
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof * r.size / effective_rows(r)
+        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof * r.size / n_eff
         se = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
         se = np.full(theta.size, np.nan)
@@ -275,7 +276,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
-                        effective_rows=effective_rows(r))
+                        effective_rows=n_eff)
 
 
 class _Problem:
@@ -293,9 +294,7 @@ class _Problem:
         self.delay = delay if delay is not None and any(gains) else None
         self.fixed_tau = fixed_tau if self.delay is not None else None
         history = next(iter(self.systems.values())).history
-        self.starts = [start_index(e, self.delay, history) for e in experiments]  # the measured history
-        self.pasts = [measured_past(e, delay.coordinate, delay.derivative) if k else None
-                      for e, k in zip(experiments, self.starts)]
+        self.starts, self.pasts = zip(*(simulation_start(e, self.delay, history) for e in experiments))
         for e, k in zip(experiments, self.starts):
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")

@@ -58,6 +58,13 @@ def measured_past(experiment: Experiment, coordinate: str, derivative: int = 0) 
     return lambda times: (spline(times, derivative), spline(times, derivative + 1))
 
 
+def simulation_start(experiment: Experiment, delay, history: str | None = None) -> tuple[int, Past | None]:
+    """Where a simulation of ``experiment`` starts (:func:`start_index`) and the fed-back
+    signal before it (:func:`measured_past`; None when it starts at the record's start)."""
+    k = start_index(experiment, delay, history)
+    return k, (measured_past(experiment, delay.coordinate, delay.derivative) if k else None)
+
+
 def padded(values: np.ndarray, start: int) -> np.ndarray:
     """A simulation from sample ``start`` on the record's full length (NaN before it)."""
     return np.concatenate([np.full((start,) + values.shape[1:], np.nan), values])
