@@ -8,6 +8,8 @@ from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.equation import (
     compare,
     diagnose,
+    k_step_prediction,
+    k_step_samples,
     refine,
     refit,
     residuals,
@@ -147,3 +149,20 @@ def test_a_wrong_delay_is_estimated_again_within_two_percent():
     train, test = experiments(None)
     result = refine(assumed_delay(train), train, test)
     assert result.model.tau == pytest.approx(0.15, rel=0.02)
+
+
+def test_k_step_windows_never_read_the_input_beyond_the_record():
+    """The k-step windows start where the measured history is known, so the last one runs
+    past the record's end: its input is held there, not extrapolated by the spline (an
+    extrapolated chirp made a stable model diverge on duffing_delay.toml's test record)."""
+    train, test = experiments(None)
+    model = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    t = test.time
+    k = k_step_samples(test.dt)
+    assert (t.size - 1 - int(np.searchsorted(t, t[0] + model.tau))) % k  # the last window overruns the record
+    # a force that ends in a steep cubic: held at its last value it is harmless, extrapolated
+    # by the spline for the rest of the window it drives the state past 1e8
+    wild = Experiment(t, {"x": test.output("x")}, {"f": test.input("f") + 1e14 * (t - t[-1] + 0.01).clip(0) ** 3},
+                      "wild end")
+    prediction = k_step_prediction(model, wild, k)
+    assert np.isfinite(prediction[-10:]).all()

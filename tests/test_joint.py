@@ -248,6 +248,8 @@ def test_coupled_selection_without_test_data_cross_validates():
     raw["data"]["train"]["simulate"].update(duration=20.0, noise={"output": 0.0})
     for equation in raw["truth"]["equation"]:  # the library is the true structure
         equation["coefficients"].pop("sign(theta')")
+    for equation in raw["model"]["equation"]:  # ... offered as candidates, so the path selects
+        equation["library"]["select"] = True
     raw["fit"] = {"estimator": "stlsq", "lambdas": {"min": 1e-8, "max": 1e-1, "count": 12}, "window": 1.0}
     result = run(parse_problem(raw, SPEC.parent))
     assert np.all(np.isfinite(result.path.validation)) and result.lam > 1e-8

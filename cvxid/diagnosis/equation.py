@@ -140,7 +140,7 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
     coefs, mass, _ = numeric.arrays()
 
     def forces(fine: np.ndarray, h: float) -> np.ndarray:
-        at = t[starts][None, :] + fine[:, None]
+        at = np.minimum(t[starts][None, :] + fine[:, None], t[-1])  # the last window's unused tail: no extrapolation
         return np.stack([spline(at) for spline in splines], axis=1)  # (S, C, B)
 
     X, _ = integrate(local, forces, coords, [eq.terms for eq in numeric.equations], np.repeat(coefs, B, axis=1),
