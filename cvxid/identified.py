@@ -19,11 +19,12 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
+from cvxid.initial_state import check_initial_state, estimate_initial_state
 from cvxid.errors import CvxidError
 from cvxid.metrics import fit_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
-from cvxid.regression.history import padded, simulation_start
+from cvxid.regression.history import padded, simulation_start, start_index
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import (
     CoupledSystem,
@@ -120,13 +121,29 @@ class IdentifiedModel:
         ``(x0, v0)`` at its start (estimated from the data by default).  With the measured
         history (:mod:`cvxid.regression.history`) it starts at :math:`t_0 + \\tau_{\\max}`;
         the samples before are NaN."""
-        system, delay = self.system(history), self.spec.delay
-        k, past = simulation_start(experiment, delay, system.history)
-        t, y = experiment.time[k:], experiment.output(self.spec.coordinate)[k:]
-        guess = initial_state(t, y)
-        x, v = simulate(system, t, experiment.input(self.spec.input)[k:], guess[0] if x0 is None else x0,
-                        guess[1] if v0 is None else v0, past=past)
-        return padded(x, k), padded(v, k)
+        if x0 is None or v0 is None:
+            guess = self.initial_state(experiment, history)
+            x0, v0 = guess[0] if x0 is None else x0, guess[1] if v0 is None else v0
+        return self.simulator(experiment, history)(x0, v0)
+
+    def simulator(self, experiment: Experiment, history: str | None = None):
+        """:meth:`simulate` from any start ``(x0, v0)``, everything else (the system, the
+        input, the measured past) prepared once: for searches over the start."""
+        system = self.system(history)
+        k, past = simulation_start(experiment, self.spec.delay, system.history)
+        t, u = experiment.time[k:], experiment.input(self.spec.input)[k:]
+
+        def run(x0: float, v0: float) -> tuple[np.ndarray, np.ndarray]:
+            x, v = simulate(system, t, u, x0, v0, past=past)
+            return padded(x, k), padded(v, k)
+
+        return run
+
+    def initial_state(self, experiment: Experiment, history: str | None = None) -> tuple[float, float]:
+        """The record's own state (position, velocity) where :meth:`simulate` starts,
+        from a smoothing fit of the measured output there."""
+        k = start_index(experiment, self.spec.delay, self.system(history).history)
+        return initial_state(experiment.time[k:], experiment.output(self.spec.coordinate)[k:])
 
     def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
         """Physical parameters, beside the truth when it is known."""
@@ -314,30 +331,57 @@ class IdentifiedSystem:
     def simulate(self, experiment: Experiment, initial: dict | None = None) -> dict[str, np.ndarray]:
         """Free-run simulation of every coordinate under ``experiment``'s inputs, from
         ``initial`` (coordinate → (position, velocity)) or the state estimated from the data."""
+        return self.simulator(experiment)(initial or self.initial_state(experiment))
+
+    def simulator(self, experiment: Experiment):
+        """:meth:`simulate` from any start (coordinate → (position, velocity)), everything
+        else prepared once: for searches over the start."""
         system, delay = self.system(), next(iter(self.specs.values())).delay
         k, past = simulation_start(experiment, delay, system.history if delay is not None else None)
         t = experiment.time[k:]
-        initial = initial or {c: initial_state(t, experiment.output(c)[k:]) for c in self.coordinates}
         inputs = [experiment.input(m.spec.input)[k:] for m in self.models.values()]
-        x, _ = simulate_coupled(system, t, inputs, {c: v[0] for c, v in initial.items()},
-                                {c: v[1] for c, v in initial.items()}, past=past)
-        return {c: padded(values, k) for c, values in x.items()}
 
-    def compare(self, experiment: Experiment) -> pd.DataFrame:
-        """Free-run fit (%) and RMS error of every coordinate on ``experiment``; a
-        diverging simulation gives fit -inf."""
+        def run(initial: dict) -> dict[str, np.ndarray]:
+            x, _ = simulate_coupled(system, t, inputs, {c: v[0] for c, v in initial.items()},
+                                    {c: v[1] for c, v in initial.items()}, past=past)
+            return {c: padded(values, k) for c, values in x.items()}
+
+        return run
+
+    def initial_state(self, experiment: Experiment) -> dict[str, tuple[float, float]]:
+        """Every coordinate's own state where :meth:`simulate` starts, from a smoothing fit."""
+        delay = next(iter(self.specs.values())).delay
+        k = start_index(experiment, delay, self.system().history) if delay is not None else 0
+        return {c: initial_state(experiment.time[k:], experiment.output(c)[k:]) for c in self.coordinates}
+
+    def compare(self, experiment: Experiment, initial: str = "estimated") -> pd.DataFrame:
+        """Free-run fit (%) and RMS error of every coordinate on ``experiment``, and the
+        start the free run used (``initial_position``, ``initial_velocity``): the state
+        ``initial`` names, ``"estimated"`` (least squares over the record, with the fit
+        from the record's own start beside it as ``record_fit_percent``) or ``"record"``.
+        A diverging simulation gives fit -inf."""
+        check_initial_state(initial)
+        run, measured = self.simulator(experiment), {c: experiment.output(c) for c in self.coordinates}
+        state = self.initial_state(experiment)
+        record = None
         try:
-            sim = self.simulate(experiment)
+            sim = run(state)
+            if initial == "estimated":
+                record = {c: fit_percent(measured[c], sim[c]) for c in self.coordinates}
+                state = estimate_initial_state(run, measured, state)
+                sim = run(state)
         except SimulationDiverged:
             sim = None
         rows = []
         for c in self.coordinates:
-            y = experiment.output(c)
-            if sim is None:
-                rows.append({"coordinate": c, "fit_percent": -np.inf, "rms": np.inf})
-            else:
-                rows.append({"coordinate": c, "fit_percent": fit_percent(y, sim[c]),
-                             "rms": float(np.sqrt(np.nanmean((sim[c] - y) ** 2)))})
+            y = measured[c]
+            row = {"coordinate": c, "fit_percent": -np.inf, "rms": np.inf}
+            if sim is not None:
+                row.update(fit_percent=fit_percent(y, sim[c]), rms=float(np.sqrt(np.nanmean((sim[c] - y) ** 2))))
+            if initial == "estimated":
+                row["record_fit_percent"] = -np.inf if record is None else record[c]
+            row.update(initial_position=state[c][0], initial_velocity=state[c][1])
+            rows.append(row)
         return pd.DataFrame(rows).set_index("coordinate")
 
     # ------------------------------------------------------------------ JSON

@@ -32,14 +32,19 @@ def path_figure(path, selected: float | None = None):
     return fig
 
 
-def comparison_figure(time, measured, simulated, title: str = "free-run simulation against data"):
-    """Measured and simulated output, with the error below."""
+def comparison_figure(time, measured, simulated, title: str = "free-run simulation against data",
+                      from_record=None):
+    """Measured and simulated output, with the error below; ``from_record`` (optional) is
+    the same model's free run from the record's own start, drawn thin beside it."""
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 6), sharex=True, height_ratios=[3, 1])
     top.plot(time, measured, "k", lw=0.8, label="measured")
+    if from_record is not None:
+        top.plot(time, from_record, color="tab:blue", lw=0.7, ls="--", label="model from the record's own start")
+        bottom.plot(time, measured - from_record, color="tab:blue", lw=0.6, ls="--")
     top.plot(time, simulated, "r", lw=1.0, label="identified model")
     top.set_ylabel("output")
     top.legend()
-    top.set_title(title)
+    top.set_title(title, fontsize=10)
     bottom.plot(time, measured - simulated, "k", lw=0.8)
     bottom.set_ylabel("error")
     bottom.set_xlabel("time [s]")
@@ -68,7 +73,7 @@ def coordinates_figure(time, measured: dict, simulated: dict, title: str = "free
         ax.plot(time, simulated[c], "r", lw=1.0, label="identified model")
         ax.set_ylabel(c)
     axes[0, 0].legend()
-    axes[0, 0].set_title(title)
+    axes[0, 0].set_title(title, fontsize=10)
     axes[-1, 0].set_xlabel("time [s]")
     fig.tight_layout()
     return fig

@@ -15,7 +15,7 @@ LAYERS = [
     {"errors", "progress", "metrics", "plots"},
     {"data"},
     {"model"},
-    {"simulate"},
+    {"simulate", "initial_state"},
     {"regression"},
     {"identified", "export"},
     {"identify"},
@@ -118,3 +118,14 @@ def test_imports_point_down_the_layers(module):
         return
     upward = [m for m in graph()[module] if layer(m) is not None and layer(m) > mine]
     assert not upward, f"{module} (layer {mine}) imports from higher layers: {upward}"
+
+
+def test_pyproject_lists_every_subpackage():
+    """The package list is explicit (problems/ installs as cvxid.problems): a new subpackage
+    missing from it would be left out of every installed copy."""
+    from cvxid.spec.toml import tomllib
+
+    config = tomllib.loads((PACKAGE.parent / "pyproject.toml").read_text())["tool"]["setuptools"]
+    found = {module_name(p.parent / "__init__.py") for p in PACKAGE.rglob("__init__.py")} | {"cvxid.problems"}
+    assert set(config["packages"]) == found
+    assert config["package-dir"] == {"cvxid.problems": "problems"}

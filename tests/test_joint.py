@@ -18,8 +18,10 @@ SPEC = ROOT / "problems" / "flexible_joint.toml"
 
 
 @pytest.mark.slow
-def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_path, capsys):
-    assert main(["run", str(SPEC), "--out", str(tmp_path)]) == 0
+def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a shipped problem runs by its name from any folder
+    assert main(["run", "flexible_joint", "--out", "out"]) == 0
+    tmp_path = tmp_path / "out"
     result = json.loads((tmp_path / "result.json").read_text())
     physical, truth = result["physical"], result["truth"]
     # the issue asked for 5 %; the joint output-error fit reaches the noise floor
@@ -37,6 +39,9 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     # the tie holds exactly, the free-run test fit is high on both angles
     assert result["coefficients"]["alpha:theta'"] == pytest.approx(-result["coefficients"]["theta:theta'"], rel=1e-12)
     assert min(result["test_fit_percent"].values()) > 95
+    start = result["test_initial_state"]  # the free run starts from the state estimated on the test record
+    assert start["method"] == "estimated" and set(start["position"]) == set(start["velocity"]) == {"theta", "alpha"}
+    assert all(result["test_fit_percent"][c] >= result["test_fit_percent_record_start"][c] - 1e-9 for c in start["position"])
     low, high = result["tau"]["interval"]  # the noise's share only: the rig's smooth friction is not in it
     assert low < physical["tau"] < high and high - low < 1e-3
     assert {"test_fit", "delay_profile", "refinement"} <= set(result["figures"])
@@ -206,7 +211,10 @@ def test_model_files_written_by_the_previous_release_load_and_simulate_as_before
     test = load_problem(ROOT / "problems" / f"{spec}.toml").experiment("test")
     # both models have a Coulomb term, now simulated with Karnopp's stick-slip (the test data
     # of hidden_friction too): the fits move in the second decimal, no more
-    assert system.compare(test)["fit_percent"].to_dict() == pytest.approx(fits, abs=0.2)
+    # (from the record's own start, as that release simulated; the estimated start fits at least as well)
+    assert system.compare(test, initial="record")["fit_percent"].to_dict() == pytest.approx(fits, abs=0.2)
+    estimated = system.compare(test)
+    assert (estimated["fit_percent"] >= estimated["record_fit_percent"] - 1e-9).all()
 
 
 def _lasso_with_extra_terms(test: bool):

@@ -12,7 +12,9 @@ import sys
 import warnings
 
 from cvxid import __version__
+from cvxid.spec.shipped import resolve_spec
 from cvxid.errors import CvxidError
+from cvxid.progress import set_quiet
 
 
 def _run(args) -> int:
@@ -24,6 +26,18 @@ def _run(args) -> int:
     print(result.summary())
     if path:
         print(f"  wrote {path} and figures")
+    return 0
+
+
+def _problems(args) -> int:
+    from cvxid.spec.shipped import problems_table, shipped_folder
+
+    table = problems_table()
+    width, data = max(map(len, table.index)), max(map(len, table["data"]))
+    print(f"{'problem':<{width}}  {'data':<{data}}  what it shows")
+    for name, row in table.iterrows():
+        print(f"{name:<{width}}  {row['data']:<{data}}  {row['what it shows']}")
+    print(f"  in {shipped_folder()}; run one with `cvxid run NAME`")
     return 0
 
 
@@ -119,11 +133,14 @@ def main(argv=None) -> int:
         description="Identify nonlinear systems with time delay from data, as convex problems (cvxpy).",
     )
     parser.add_argument("--version", action="version", version=f"cvxid {__version__}")
+    quiet = argparse.ArgumentParser(add_help=False)
+    quiet.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="identify the model of a problem spec")
-    p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md)")
+    p_run = sub.add_parser("run", help="identify the model of a problem spec", parents=[quiet])
+    p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md) or a shipped problem's name")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
-    p_bench = sub.add_parser("bench", help="time the lambda path against the baselines")
+    sub.add_parser("problems", help="list the shipped problems (run one with `cvxid run NAME`)", parents=[quiet])
+    p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet])
     p_bench.add_argument("spec", nargs="?", help="a TOML problem spec (none with --heldout)")
     p_bench.add_argument("--order", type=int, default=None, help="library order (default: the spec's)")
     p_bench.add_argument("--naive-lambdas", type=int, default=5, help="lambdas timed for the naive cvxpy baseline")
@@ -147,9 +164,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     if args.command == "bench" and not args.heldout and not args.spec:
         parser.error("bench needs a SPEC (or --heldout)")
+    set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
-        return {"run": _run, "bench": _bench}[args.command](args)
+        if getattr(args, "spec", None):
+            args.spec = str(resolve_spec(args.spec))
+        return {"run": _run, "bench": _bench, "problems": _problems}[args.command](args)
     except CvxidError as exc:
         print(f"cvxid: error: {exc}", file=sys.stderr)
         return 2

@@ -30,6 +30,17 @@ def records(frame) -> dict:
     return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
 
 
+def coupled_fit_figure(test, system, table):
+    """Every coordinate's free run on the test record from the estimated start in ``table``
+    (:meth:`~cvxid.identified.IdentifiedSystem.compare`)."""
+    start = {c: (table.loc[c, "initial_position"], table.loc[c, "initial_velocity"]) for c in table.index}
+    fits = ", ".join(f"{c} {table.loc[c, 'fit_percent']:.1f} % ({table.loc[c, 'record_fit_percent']:.1f} %)"
+                     for c in table.index)
+    return coordinates_figure(test.time, {c: test.output(c) for c in system.coordinates},
+                              system.simulate(test, start),
+                              f"free-run fit {fits}: initial state estimated (from the record's own start)")
+
+
 def prepare_folder(out) -> Path:
     """The output folder, created if needed (a clear error when it cannot be)."""
     out = Path(out)
@@ -58,8 +69,7 @@ def write_report(result, out) -> Path:
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
     if result.test is not None and result.coupled and np.isfinite(result.test_fit["fit_percent"]).all():
-        plotters["test_fit"] = lambda: coordinates_figure(
-            result.test.time, {c: result.test.output(c) for c in system.coordinates}, system.simulate(result.test))
+        plotters["test_fit"] = lambda: coupled_fit_figure(result.test, system, result.test_fit)
     elif result.test is not None and not result.coupled and result.test_fit.free_run is not None:
         plotters["test_fit"] = result.test_fit.plot
     figures = {}

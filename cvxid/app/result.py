@@ -132,8 +132,13 @@ class RunResult:
         return common | (self._coupled_dict() if self.coupled else self._single_dict())
 
     def _single_fit(self) -> dict:
-        cmp = self.test_fit
+        cmp, coord = self.test_fit, self.spec.model.coordinate
+        state = None if cmp is None or cmp.initial_state is None else {
+            "method": cmp.initial, "position": {coord: cmp.initial_state[0]},
+            "velocity": {coord: cmp.initial_state[1]}}
         return {"test_fit_percent": None if cmp is None else cmp.fit_percent,
+                "test_fit_percent_record_start": None if cmp is None else cmp.record_fit_percent,
+                "test_initial_state": state,
                 "test_k_step_fit_percent": None if cmp is None else cmp.k_step_fit_percent}
 
     def _single_dict(self) -> dict:
@@ -177,6 +182,11 @@ class RunResult:
             "support": [k for k, v in system.coefficients.items() if v != 0.0],
             "ties": [{"left": a, "right": b, "factor": f} for a, b, f in system.ties],
             "test_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["fit_percent"].items()},
+            "test_fit_percent_record_start": None if cmp is None else {
+                c: float(v) for c, v in cmp["record_fit_percent"].items()},
+            "test_initial_state": None if cmp is None else {
+                "method": "estimated", "position": {c: float(v) for c, v in cmp["initial_position"].items()},
+                "velocity": {c: float(v) for c, v in cmp["initial_velocity"].items()}},
             "test_k_step_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["k_step_fit_percent"].items()},
             "lambda": self.lam,
             "solver": self.spec.fit.solver,
@@ -208,6 +218,9 @@ class RunResult:
             f"velocity {fit.velocity}, {self._windows()})",
             (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
              else "  test MSE: no test experiment ([data.test]) to score on"),
+            *([f"  test {self.test_fit.title()}; {self.test_fit.k_step}-step fit "
+               + ("-" if self.test_fit.k_step_fit_percent is None else f"{self.test_fit.k_step_fit_percent:.1f} %")]
+              if self.test_fit is not None else []),
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
                   if self.tau["interval"] else ")")] if self.tau else []),
@@ -232,8 +245,10 @@ class RunResult:
                      + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
         if self.test is not None:
             fits = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["fit_percent"].items())
+            own = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["record_fit_percent"].items())
             ahead = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["k_step_fit_percent"].items())
-            lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits}; k-step fit {ahead}")
+            lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits} (initial state "
+                         f"estimated; {own} from the record's own start); k-step fit {ahead}")
         else:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:

@@ -43,6 +43,7 @@ from cvxid.identify.stepwise import stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import fit_percent
 from cvxid.model.system import SystemSpec
+from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
@@ -73,7 +74,7 @@ def _best_velocity(spec) -> RunResult:
     if "test" not in spec.data:
         raise CvxidError('velocity = "auto" chooses by the test error: add [data.test]')
     scores, best = {}, None
-    for name in ESTIMATORS:
+    for name in progress(ESTIMATORS, "velocity auto: one identification per estimator"):
         result = _identify(replace(spec, fit=replace(spec.fit, velocity=name)))
         scores[name] = result.test_mse
         if best is None or result.test_mse < best.test_mse:

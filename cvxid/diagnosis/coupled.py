@@ -30,6 +30,7 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Term
+from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
 
 
@@ -79,7 +80,7 @@ def diagnose_joint(result: IdentifiedSystem, train: Experiment, test: Experiment
 
     before = score(base)
     rows = []
-    for label, term in terms.items():
+    for label, term in progress(terms.items(), "diagnosis: candidates", total=len(terms)):
         added = [f"{eq}:{term.name}" for eq, s in specs.items() if term.name not in s.column_names]
         after = score(base + added)
         rows.append({"candidate": label, "term": term.name, "meaning": term.meaning, "test_mse": after,
@@ -100,7 +101,7 @@ def equation_mse(result: IdentifiedSystem, rows: SystemBuilder) -> float:
 def simulation_error(result: IdentifiedSystem, experiment: Experiment) -> float:
     """Mean over coordinates of the free-run RMS error relative to the coordinate's
     standard deviation (inf when the simulation diverges)."""
-    table = result.compare(experiment)
+    table = result.compare(experiment, initial="record")
     spread = np.array([np.std(experiment.output(c)) for c in table.index])
     return float(np.mean(table["rms"].to_numpy() / spread))
 
@@ -153,7 +154,7 @@ def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, 
     train_rows, test_rows = builders or _builders(result.specs, train, test, velocity, window)
     equation_error = equation_mse(result, test_rows)
     sim_error = simulation_error(result, test)
-    for _ in range(max_steps + 1):
+    for _ in progress(range(max_steps + 1), "refine: diagnose, add, refit"):
         try:
             ranking = diagnose_joint(out.result, train, test, candidates, velocity, window, (train_rows, test_rows))
         except CvxidError:

@@ -47,6 +47,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
+from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.simulate import SimulationDiverged, half_steps, integrate
@@ -59,6 +60,9 @@ around its best point).  The simulation error has local minima in :math:`\tau`, 
 an unknown gain whole ranges of delays fit equally well: a local fit cannot see either."""
 PROFILE_ITERATIONS = 12
 """Iterations of each fixed-delay fit of the profile (warm-started from its neighbour)."""
+
+FINE = 7
+"""Delays of the finer grid around the profile's best point (between its two neighbours)."""
 
 
 @dataclass(frozen=True)
@@ -154,9 +158,11 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
     taus = np.linspace(delay.tau_min, delay.tau_max, grid)
     first = system.tau if system.tau is not None else system.physical.get("tau", taus[0])
     points: dict[float, tuple[float, PolishResult]] = {}
+    bar = progress(desc="polish: output-error delay profile", total=grid + FINE)
 
     def walk(sequence, origin, states):
         for tau in sequence:
+            bar.update()
             try:
                 fit = output_error(with_tau(origin, tau), experiments, states, step=step,
                                    max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
@@ -172,9 +178,10 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
         raise CvxidError("the output-error polish failed at every delay of its profile (diverging simulations)")
     best = min(points, key=lambda t: points[t][0])
     spacing = taus[1] - taus[0] if grid > 1 else 0.0
-    fine = np.linspace(max(best - spacing, delay.tau_min), min(best + spacing, delay.tau_max), 9)[1:-1]
+    fine = np.linspace(max(best - spacing, delay.tau_min), min(best + spacing, delay.tau_max), FINE + 2)[1:-1]
     walk([t for t in fine if t > best], points[best][1].system, points[best][1].initial)
     walk([t for t in fine[::-1] if t < best], points[best][1].system, points[best][1].initial)
+    bar.close()
     return points
 
 

@@ -43,11 +43,14 @@ class DelayProfile:
 
 
 def effective_rows(residual: np.ndarray) -> float:
-    """:math:`n / (1 + 2\\sum_k \\rho_k)`, summing autocorrelations until the first negative."""
+    """:math:`n / (1 + 2\\sum_k \\rho_k)`, summing autocorrelations until the first negative
+    (``n`` for a residual of zeros)."""
     r = np.asarray(residual, float) - np.mean(residual)
     n = r.size
     spectrum = np.fft.rfft(r, 2 * n)
     acf = np.fft.irfft(spectrum * np.conj(spectrum))[:n]
+    if not acf[0] > 0:  # a residual of zeros (an exact fit) carries no correlation to count
+        return float(n)
     acf = acf / acf[0]
     negative = np.flatnonzero(acf[1:] < 0)
     stop = negative[0] + 1 if negative.size else n

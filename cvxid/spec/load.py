@@ -7,25 +7,20 @@ into that form and read by the same checks, so both give the same numbers.
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 from typing import Mapping
 
 from cvxid.errors import CvxidError
+from cvxid.spec.shipped import resolve_spec
+from cvxid.spec.toml import tomllib
 from cvxid.spec.coupled import is_joint, parse_joint_problem
 from cvxid.spec.problem import ProblemSpec, Table, parse_single_problem
 
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
-
 
 def load_problem(path) -> ProblemSpec:
-    """Read and check a TOML problem spec."""
-    path = Path(path)
-    if not path.is_file():
-        raise CvxidError(f"spec file not found: {path}")
+    """Read and check a TOML problem spec: a file, or a shipped problem's name
+    (``cvxid problems`` lists them)."""
+    path = resolve_spec(path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
