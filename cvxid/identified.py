@@ -21,7 +21,7 @@ import pandas as pd
 from cvxid.data.experiment import Experiment
 from cvxid.initial_state import check_initial_state, estimate_initial_state
 from cvxid.errors import CvxidError
-from cvxid.metrics import fit_percent
+from cvxid.metrics import fit_percent, noise_ceiling_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
 from cvxid.regression.history import padded, simulation_start, start_index
@@ -380,7 +380,8 @@ class IdentifiedSystem:
                 row.update(fit_percent=fit_percent(y, sim[c]), rms=float(np.sqrt(np.nanmean((sim[c] - y) ** 2))))
             if initial == "estimated":
                 row["record_fit_percent"] = -np.inf if record is None else record[c]
-            row.update(initial_position=state[c][0], initial_velocity=state[c][1])
+            row.update(initial_position=state[c][0], initial_velocity=state[c][1],
+                       noise_ceiling_percent=noise_ceiling_percent(y))
             rows.append(row)
         return pd.DataFrame(rows).set_index("coordinate")
 

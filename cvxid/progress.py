@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import sys
 
-from tqdm.auto import tqdm
+from tqdm import tqdm
 
 DELAY = 2.0
 """Seconds a loop runs before its bar appears (shorter jobs print nothing)."""

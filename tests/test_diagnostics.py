@@ -184,5 +184,9 @@ def test_compare_estimates_the_start_a_noisy_record_hides():
     assert abs(estimated.initial_state[0] - x) < 0.01
     assert estimated.fit_percent > own.fit_percent and estimated.record_fit_percent == own.fit_percent
     assert "from the record's own start" in estimated.title()
+    # the true model on noise 0.03 reaches the noise's ceiling, and the ceiling is read off the data
+    y = test.output("x")[k:]
+    assert estimated.ceiling_percent == pytest.approx(100 * (1 - 0.03 / np.std(y)), abs=0.3)
+    assert estimated.fit_percent == pytest.approx(estimated.ceiling_percent, abs=0.3)
     with pytest.raises(CvxidError, match="initial_state must be one of estimated, record"):
         compare(true, test, initial="zero")

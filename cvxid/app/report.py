@@ -34,11 +34,11 @@ def coupled_fit_figure(test, system, table):
     """Every coordinate's free run on the test record from the estimated start in ``table``
     (:meth:`~cvxid.identified.IdentifiedSystem.compare`)."""
     start = {c: (table.loc[c, "initial_position"], table.loc[c, "initial_velocity"]) for c in table.index}
-    fits = ", ".join(f"{c} {table.loc[c, 'fit_percent']:.1f} % ({table.loc[c, 'record_fit_percent']:.1f} %)"
-                     for c in table.index)
+    fits = ", ".join(f"{c} {table.loc[c, 'fit_percent']:.1f} % ({table.loc[c, 'record_fit_percent']:.1f} %; "
+                     f"noise allows {table.loc[c, 'noise_ceiling_percent']:.1f} %)" for c in table.index)
     return coordinates_figure(test.time, {c: test.output(c) for c in system.coordinates},
                               system.simulate(test, start),
-                              f"free-run fit {fits}: initial state estimated (from the record's own start)")
+                              f"free-run fit {fits}\ninitial state estimated (in brackets: from the record's own start)")
 
 
 def prepare_folder(out) -> Path:

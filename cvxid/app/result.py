@@ -138,6 +138,7 @@ class RunResult:
             "velocity": {coord: cmp.initial_state[1]}}
         return {"test_fit_percent": None if cmp is None else cmp.fit_percent,
                 "test_fit_percent_record_start": None if cmp is None else cmp.record_fit_percent,
+                "test_fit_percent_noise_ceiling": None if cmp is None else cmp.ceiling_percent,
                 "test_initial_state": state,
                 "test_k_step_fit_percent": None if cmp is None else cmp.k_step_fit_percent}
 
@@ -184,6 +185,8 @@ class RunResult:
             "test_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["fit_percent"].items()},
             "test_fit_percent_record_start": None if cmp is None else {
                 c: float(v) for c, v in cmp["record_fit_percent"].items()},
+            "test_fit_percent_noise_ceiling": None if cmp is None else {
+                c: float(v) for c, v in cmp["noise_ceiling_percent"].items()},
             "test_initial_state": None if cmp is None else {
                 "method": "estimated", "position": {c: float(v) for c, v in cmp["initial_position"].items()},
                 "velocity": {c: float(v) for c, v in cmp["initial_velocity"].items()}},

@@ -19,6 +19,7 @@ r"""Compare a model with measurements, see where it fails, name the missing effe
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -28,12 +29,12 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
 from cvxid.data.experiment import Experiment
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, estimate_initial_state
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
-from cvxid.metrics import fit_percent
+from cvxid.metrics import fit_percent, noise_ceiling_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
 from cvxid.model.terms import DelayedSignal, Term
@@ -56,7 +57,8 @@ class Comparison:
     ``initial`` says: ``"estimated"`` (least squares over the compared record,
     :mod:`cvxid.initial_state`), ``"record"`` (the record's smoothed first
     state) or ``"given"``; ``record_fit_percent`` is the fit from the record's own start,
-    kept beside an estimated one."""
+    kept beside an estimated one; ``ceiling_percent`` is the fit a perfect model would reach
+    under the record's measurement noise (:func:`~cvxid.metrics.noise_ceiling_percent`)."""
 
     time: np.ndarray
     measured: np.ndarray
@@ -70,6 +72,7 @@ class Comparison:
     initial_state: tuple[float, float] | None = None
     record_fit_percent: float | None = None
     record_free_run: np.ndarray | None = None
+    ceiling_percent: float | None = None
 
     def table(self) -> pd.DataFrame:
         rows = {"free run": [self.fit_percent, self.nrmse]}
@@ -82,7 +85,7 @@ class Comparison:
         """One line: the free-run fit and where its simulation started."""
         if self.fit_percent is None:
             return "free run: " + self.message
-        text = f"free-run fit {self.fit_percent:.1f} % (initial state {self.initial}"
+        text = f"free-run fit {self.fit_percent:.1f} % (the noise allows {self.ceiling_percent:.1f} %; initial state {self.initial}"
         if self.initial == "estimated" and self.record_fit_percent is not None:
             text += f"; {self.record_fit_percent:.1f} % from the record's own start"
         return text + ")"
@@ -138,7 +141,7 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
         ahead = None
         message = (message + "; " if message else "") + f"k-step: {exc}"
     return Comparison(experiment.time[start:], measured, sim, free, nrmse, k, ahead, message,
-                      initial, state, record_fit, record_sim)
+                      initial, state, record_fit, record_sim, noise_ceiling_percent(measured))
 
 
 K_STEP_SECONDS = 0.1
@@ -375,7 +378,11 @@ def diagnose(
     drops = {}
     if test is not None:
         treg = _builder(spec, test, velocity, train_rows.window, test_rows).at(model.tau, extended)
-        base = Problem.from_regression(reg, spec.nonnegative)
+        with warnings.catch_warnings():
+            # a candidate may repeat a model column (the delay's derivative at tau = 0 is x'):
+            # its ERR and its group say so, the rank warning would only alarm
+            warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
+            base = Problem.from_regression(reg, spec.nonnegative)
         mask = np.zeros(len(names), bool)
         mask[used] = True
         val_before = treg.mse(base.refit(mask).coefficients)

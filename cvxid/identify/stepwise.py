@@ -47,7 +47,7 @@ from cvxid.model.library import Library
 from cvxid.progress import progress
 from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.regression import Regression
-from cvxid.regression.velocity import noise_level
+from cvxid.metrics import noise_level
 
 
 @dataclass(frozen=True)

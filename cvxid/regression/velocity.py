@@ -39,6 +39,7 @@ from scipy.interpolate import make_smoothing_spline
 from scipy.signal import savgol_filter
 
 from cvxid.errors import CvxidError
+from cvxid.metrics import noise_level
 
 ESTIMATORS = ("observer", "savgol", "spline")
 
@@ -85,13 +86,6 @@ def observer(y: np.ndarray, dt: float, gains: ObserverGains = ObserverGains()) -
         z2 += dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
         out[k + 1] = z2
     return out
-
-
-def noise_level(y: np.ndarray) -> float:
-    """Standard deviation of white measurement noise, from the median absolute third
-    difference (smooth signals contribute almost nothing to it at fine sampling)."""
-    d3 = np.diff(np.asarray(y, float), 3)
-    return float(np.median(np.abs(d3)) / 0.6745 / np.sqrt(20.0))
 
 
 def savgol_window(y: np.ndarray, polyorder: int = 3) -> int:
