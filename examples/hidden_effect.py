@@ -72,3 +72,20 @@ print(loop)
 print(loop.model.equation())
 loop.plot().savefig(OUT / "3_error_falls.png", dpi=100)
 cvxid.compare(loop.model, test).plot().savefig(OUT / "4_final_fit.png", dpi=100)
+
+# %% [markdown]
+# ## 5. The story in one picture (the README's figure: `docs/hidden_friction.png`)
+
+# %%
+final = cvxid.compare(loop.model, test)
+fig, axes = plt.subplots(2, 1, figsize=(8, 4.6), sharex=True)
+for ax, (label, c) in zip(axes, [("the model as written (no friction)", cmp),
+                                 (f"with the effect cvxid named and added ({loop.steps[0].added})", final)]):
+    ax.plot(c.time, c.measured, "k", lw=0.8, label="measured (test record)")
+    ax.plot(c.time, c.free_run, "r", lw=1.0, label="free-run simulation")
+    ax.set_title(f"{label}: fit {c.fit_percent:.1f} %", fontsize=10)
+    ax.set_ylabel("x")
+axes[0].legend(fontsize=8, loc="lower left", ncol=2)
+axes[-1].set_xlabel("time [s]")
+fig.tight_layout()
+fig.savefig(OUT / "story.png", dpi=90)

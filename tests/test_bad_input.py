@@ -1,4 +1,4 @@
-"""The README's bad-input table, row by row (rows already covered elsewhere are named)."""
+"""The bad-input table (docs/bad-input.md), row by row (rows already covered elsewhere are named)."""
 
 import re
 

@@ -137,7 +137,7 @@ def main(argv=None) -> int:
     quiet.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="identify the model of a problem spec", parents=[quiet])
-    p_run.add_argument("spec", help="a TOML problem spec (see problems/README.md) or a shipped problem's name")
+    p_run.add_argument("spec", help="a TOML problem spec (see docs/spec.md) or a shipped problem's name")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
     sub.add_parser("problems", help="list the shipped problems (run one with `cvxid run NAME`)", parents=[quiet])
     p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet])

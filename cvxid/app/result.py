@@ -2,7 +2,7 @@
 
 It prints (``summary``), tabulates (``table``: physical parameters beside the truth) and
 serialises itself (``to_dict``: the ``result.json`` schema 1, whose keys for one equation
-and for a coupled system are listed in ``problems/README.md``).  For one equation its
+and for a coupled system are listed in ``docs/spec.md``).  For one equation its
 ``model`` is that equation's :class:`~cvxid.identified.IdentifiedModel`; for several,
 ``system`` holds them all.
 """

@@ -1,6 +1,6 @@
 """Coupled problem specs: several ``[[model.equation]]`` tables, one shared delay, ties.
 
-The format (documented in ``problems/README.md``) extends the single-equation spec: each
+The format (documented in ``docs/spec.md``) extends the single-equation spec: each
 equation is a ``[model]``-like table; the shared delay is ``[model.delay]`` with each
 equation's known feedback gain as its ``delay_gain``; ``[[model.tie]]`` tables tie
 coefficients across equations; ``[[truth.equation]]`` tables describe the simulated truth.

@@ -1,4 +1,4 @@
-"""Problem specs: declarative TOML files (see ``problems/README.md``), read without ``eval``.
+"""Problem specs: declarative TOML files (see ``docs/spec.md``), read without ``eval``.
 
 Every table and key is checked: an unknown key, a wrong type or a missing file is a
 :class:`~cvxid.errors.CvxidError` that names the key and the fix.  Numbers are numbers and
