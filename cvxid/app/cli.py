@@ -167,7 +167,7 @@ def main(argv=None) -> int:
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
-        if getattr(args, "spec", None):
+        if getattr(args, "spec", None) and not getattr(args, "heldout", False):
             args.spec = str(resolve_spec(args.spec))
         return {"run": _run, "bench": _bench, "problems": _problems}[args.command](args)
     except CvxidError as exc:
