@@ -39,17 +39,32 @@ def test_rank_deficient_library_is_named():
         reg.reduce()
 
 
-def test_a_solver_reporting_infeasible_is_a_numerical_failure_not_zeros(monkeypatch):
+def test_a_failing_solver_falls_back_to_the_next_installed_one_and_says_so(monkeypatch):
     # signs and ties are homogeneous (all zero satisfies them), so an "infeasible" status
-    # can only be the solver failing: an injected failure must end in an error naming it
+    # can only be the solver failing: the next installed solver answers, and a warning names both
     prob = Problem.from_arrays(np.column_stack([np.sin(T), T]), np.cos(T), ["a", "b"], nonnegative=["a"])
+    reference = prob.solve(0.1)
+    attempt = Problem._attempt
 
-    def infeasible(self, settings):
-        self.cvxpy._status = cp.INFEASIBLE
-        return None
+    def clarabel_fails(self, solver, settings):
+        if solver == "CLARABEL":
+            self.cvxpy._status = cp.INFEASIBLE
+            return None
+        return attempt(self, solver, settings)
 
-    monkeypatch.setattr(Problem, "_attempt", infeasible)
-    with pytest.raises(SolverFailure, match=r"reported the constraints \(c\[a\] >= 0\) infeasible.*Try solver = 'OSQP'"):
+    monkeypatch.setattr(Problem, "_attempt", clarabel_fails)
+    with pytest.warns(CvxidWarning, match=r"CLARABEL: it reported the constraints \(c\[a\] >= 0\) infeasible.*"
+                                          r"OSQP answered instead"):
+        fit = prob.solve(0.1)
+    assert fit.solver == "OSQP"
+    assert fit.coefficients == pytest.approx(reference.coefficients, rel=1e-4, abs=1e-6)
+
+
+def test_when_every_solver_fails_the_error_names_each_and_reports_no_numbers(monkeypatch):
+    prob = Problem.from_arrays(np.column_stack([np.sin(T), T]), np.cos(T), ["a", "b"], nonnegative=["a"])
+    monkeypatch.setattr(Problem, "_attempt", lambda self, solver, settings: f"{solver.lower()} crashed")
+    with pytest.raises(SolverFailure, match=r"no solver answered at lambda = 0.1 \(CLARABEL: clarabel crashed; "
+                                            r"OSQP: osqp crashed; SCS: scs crashed\); no solution is reported"):
         prob.solve(0.1)
 
 

@@ -208,3 +208,23 @@ def test_version(capsys):
     with pytest.raises(SystemExit) as done:
         main(["--version"])
     assert done.value.code == 0 and capsys.readouterr().out.strip() == f"cvxid {cvxid.__version__}"
+
+
+def test_a_failing_solver_is_replaced_and_the_run_says_so_in_result_json(tmp_path, monkeypatch):
+    """An injected Clarabel failure: OSQP (then SCS) answers every lambda, the model is the
+    same, and result.json's warnings name the solver that failed and the one that answered."""
+    from cvxid.identify.problem import Problem
+
+    attempt = Problem._attempt
+
+    def clarabel_fails(self, solver, settings):
+        if solver == "CLARABEL":
+            return "injected failure"
+        return attempt(self, solver, settings)
+
+    monkeypatch.setattr(Problem, "_attempt", clarabel_fails)
+    out = tmp_path / "out"
+    assert main(["run", str(write_spec(tmp_path, estimator="lasso")), "--out", str(out)]) == 0
+    data = json.loads((out / "result.json").read_text())
+    assert any("CLARABEL: injected failure" in w and "answered instead" in w for w in data["warnings"])
+    assert data["physical"]["k1"] == pytest.approx(4.0, rel=0.01) and data["physical"]["m"] == pytest.approx(1.0, rel=0.01)

@@ -28,11 +28,12 @@ from scipy.optimize import lsq_linear
 from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
 from cvxid.regression.regression import Reduced, Regression
 
-SOLVERS = ("CLARABEL", "OSQP")
+SOLVERS = ("CLARABEL", "OSQP", "SCS")
 SOLVER_SETTINGS = {
     # tight tolerances: the defaults misreport badly scaled problems (notes/solvers.md)
     "CLARABEL": dict(tol_gap_abs=1e-10, tol_gap_rel=1e-10, tol_feas=1e-10, tol_ktratio=1e-8),
     "OSQP": dict(eps_abs=1e-9, eps_rel=1e-9, max_iter=200_000, polishing=True),
+    "SCS": dict(eps_abs=1e-9, eps_rel=1e-9, max_iters=200_000),
 }
 SUPPORT_TOL = 1e-7
 """A scaled coefficient smaller than this (target has unit RMS) counts as zero."""
@@ -93,10 +94,10 @@ class Problem:
         self.solver = str(solver).upper()
         if self.solver not in SOLVERS:
             raise CvxidError(f"unknown solver '{solver}'; use one of {', '.join(SOLVERS)}")
-        if self.solver == "OSQP":
+        if self.solver != "CLARABEL":
             warnings.warn(
-                "OSQP is not accurate on badly scaled regressions like these (notes/solvers.md); "
-                "results are checked, but prefer CLARABEL",
+                f"{self.solver} (a first-order solver) is not accurate on badly scaled regressions like these "
+                "(notes/solvers.md); results are checked, but prefer CLARABEL",
                 CvxidWarning,
                 stacklevel=2,
             )
@@ -161,8 +162,8 @@ class Problem:
     def k(self) -> int:
         return len(self.names)
 
-    def _attempt(self, settings: dict) -> str | None:
-        """One solve; the solver's error message, or None."""
+    def _attempt(self, solver: str, settings: dict) -> str | None:
+        """One solve by ``solver``; the solver's error message, or None."""
         try:
             with warnings.catch_warnings():
                 # cvxpy's own "may be inaccurate" warning: the status is checked by solve()
@@ -170,12 +171,39 @@ class Problem:
                 # warm_start=False: cvxpy otherwise updates its cached Clarabel solver in place,
                 # which returned "optimal_inaccurate" answers 5 % above the optimum on these
                 # problems where a fresh solve is exact (measured: cvxid bench, order 4)
-                self.cvxpy.solve(solver=self.solver, warm_start=False, **settings)
+                self.cvxpy.solve(solver=solver, warm_start=False, **settings)
         except cp.error.SolverError as exc:
             return str(exc)
         return None
 
-    def _finish(self, lam, scaled, status, seconds, objective=None) -> Fit:
+    def _answer(self, solver: str) -> str | None:
+        """Solve by ``solver`` (Clarabel retried once with its defaults); None when it
+        answered optimally, else what went wrong."""
+        error = self._attempt(solver, SOLVER_SETTINGS[solver])
+        if solver == "CLARABEL" and (error is not None or self.cvxpy.status == cp.OPTIMAL_INACCURATE):
+            # the tight tolerances occasionally stall on badly scaled data: retry once with
+            # the solver's defaults and keep the retry if it is sound (notes/solvers.md)
+            error = self._attempt(solver, {})
+        if error is not None:
+            return error
+        status = self.cvxpy.status
+        if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
+            # signs and ties are homogeneous (all zero satisfies them): a numerical failure
+            return (f"it reported the constraints ({', '.join(self.constraints)}) infeasible, though all zero "
+                    "satisfies them")
+        if status == cp.OPTIMAL_INACCURATE and self.c.value is not None:
+            return "it reported an inaccurate solution"
+        if status != cp.OPTIMAL or self.c.value is None:
+            return f"it stopped with status '{status}'"
+        return None
+
+    def fallbacks(self) -> list[str]:
+        """The solvers tried in turn: the chosen one, then every other installed one of
+        :data:`SOLVERS`."""
+        installed = set(cp.installed_solvers())
+        return [self.solver] + [s for s in SOLVERS if s != self.solver and s in installed]
+
+    def _finish(self, lam, scaled, status, seconds, objective=None, solver: str | None = None) -> Fit:
         red = self.reduced
         scaled = np.asarray(scaled, dtype=float)
         resid = red.R @ scaled - red.r
@@ -190,7 +218,7 @@ class Problem:
             objective=float(objective),
             train_mse=float(train * red.target_scale**2),
             status=status,
-            solver=self.solver,
+            solver=solver or self.solver,
             seconds=seconds,
             names=self.names,
         )
@@ -204,39 +232,30 @@ class Problem:
             return self._finish(lam, self._full(np.zeros(0)), "optimal", 0.0)
         self.lam.value = lam
         start = time.perf_counter()
-        error = self._attempt(SOLVER_SETTINGS[self.solver])
-        if self.solver == "CLARABEL" and (error is not None or self.cvxpy.status == cp.OPTIMAL_INACCURATE):
-            # the tight tolerances occasionally stall on badly scaled data: retry once with
-            # the solver's defaults and keep the retry if it is sound (notes/solvers.md)
-            error = self._attempt({})
-        if error is not None:
-            other = "OSQP" if self.solver == "CLARABEL" else "CLARABEL"
-            raise SolverFailure(
-                f"solver {self.solver} failed at lambda = {lam:.3g} ({error}); try solver = "
-                f"'{other}', a smaller library or a narrower lambda range"
-            )
+        failures, inaccurate = [], None
+        for solver in self.fallbacks():
+            failure = self._answer(solver)
+            if failure is None:
+                status, value = cp.OPTIMAL, self.c.value
+                break
+            if inaccurate is None and self.cvxpy.status == cp.OPTIMAL_INACCURATE and self.c.value is not None:
+                inaccurate = (solver, self.c.value.copy())
+            failures.append(f"{solver}: {failure}")
+        else:
+            if inaccurate is None:
+                raise SolverFailure(
+                    f"no solver answered at lambda = {lam:.3g} ({'; '.join(failures)}); no solution is reported. "
+                    "Try a smaller library, a narrower lambda range, or rescale the data"
+                )
+            (solver, value), status = inaccurate, cp.OPTIMAL_INACCURATE
         seconds = time.perf_counter() - start
-        status = self.cvxpy.status
-        if status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):
-            # signs and ties are homogeneous (all zero satisfies them): this is a numerical failure
-            other = "OSQP" if self.solver == "CLARABEL" else "CLARABEL"
-            raise SolverFailure(
-                f"solver {self.solver} reported the constraints ({', '.join(self.constraints)}) infeasible at "
-                f"lambda = {lam:.3g}, though all zero satisfies them: a numerical failure; no solution is reported. "
-                f"Try solver = '{other}' or rescale the data"
-            )
-        if status not in (cp.OPTIMAL, cp.OPTIMAL_INACCURATE) or self.c.value is None:
-            raise SolverFailure(
-                f"solver {self.solver} stopped with status '{status}' at lambda = {lam:.3g}; "
-                "no solution is reported. Try solver = 'CLARABEL' or a smaller library"
-            )
         if status == cp.OPTIMAL_INACCURATE:
-            warnings.warn(
-                f"solver {self.solver} reports an inaccurate solution at lambda = {lam:.3g}",
-                CvxidWarning,
-                stacklevel=2,
-            )
-        return self._polish(self._finish(lam, self._full(self.c.value), status, seconds))
+            warnings.warn(f"only an inaccurate solution at lambda = {lam:.3g} ({'; '.join(failures)}): {solver}'s is "
+                          "reported", CvxidWarning, stacklevel=2)
+        elif failures:
+            warnings.warn(f"solver {'; '.join(failures)} at lambda = {lam:.3g}; {solver} answered instead",
+                          CvxidWarning, stacklevel=2)
+        return self._polish(self._finish(lam, self._full(value), status, seconds, solver=solver))
 
     def _polish(self, fit: Fit) -> Fit:
         """Polish on the support: with the support and signs fixed the problem is a least
@@ -259,7 +278,7 @@ class Problem:
         scaled[S] = cS
         if any(scaled[self.names.index(n)] < 0 for n in self.nonnegative):
             return fit
-        polished = self._finish(fit.lam, scaled, fit.status, fit.seconds)
+        polished = self._finish(fit.lam, scaled, fit.status, fit.seconds, solver=fit.solver)
         return polished if polished.objective < fit.objective else fit
 
     def refit(self, support, lam: float = 0.0) -> Fit:
