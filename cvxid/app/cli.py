@@ -18,14 +18,16 @@ from cvxid.progress import set_quiet
 
 
 def _run(args) -> int:
-    from cvxid.app.report import write_report
+    from cvxid.app.report import prepare_folder, write_report
     from cvxid.app.run import run
 
+    if args.out:
+        prepare_folder(args.out)  # an unusable --out fails before any work
     result = run(args.spec)
-    path = write_report(result, args.out) if args.out else None  # before printing: a closed pipe loses nothing
-    print(result.summary())
+    path, replaced = write_report(result, args.out) if args.out else (None, None)  # before printing: a
+    print(result.summary())                                                            # closed pipe loses nothing
     if path:
-        print(f"  wrote {path} and figures")
+        print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
     return 0
 
 

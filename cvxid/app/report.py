@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -42,22 +43,52 @@ def coupled_fit_figure(test, system, table):
 
 
 def prepare_folder(out) -> Path:
-    """The output folder, created if needed (a clear error when it cannot be)."""
+    """The output folder, created if needed and checked writable (a clear error when it
+    cannot be), before any file is written."""
     out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise CvxidError(f"--out {out} is a file, not a folder; give a folder for result.json and the figures")
     try:
         out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise CvxidError(f"cannot create the output folder {out} ({exc.strerror})") from None
+        raise CvxidError(f"cannot create the output folder {out} ({exc.strerror}); choose another --out") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise CvxidError(f"cannot write into the output folder {out} (permission denied); choose another --out")
     return out
 
 
-def write_report(result, out) -> Path:
+def earlier_run(out: Path) -> str | None:
+    """What an earlier run left in ``out``: its spec's name, or None when the folder holds
+    no ``result.json``."""
+    try:
+        data = json.loads((out / "result.json").read_text())
+    except (OSError, ValueError):
+        return None if not (out / "result.json").exists() else "an unreadable result.json"
+    return f"'{data.get('name', '?')}'" if isinstance(data, dict) else "an unreadable result.json"
+
+
+def write_atomically(path: Path, write) -> None:
+    """``write(temporary_path)``, then move the file into place in one step: a run killed
+    midway never leaves a half-written ``path`` (the old file stays whole until then)."""
+    temporary = path.with_name(f".{path.name}.{os.getpid()}.partial")
+    try:
+        write(temporary)
+        os.replace(temporary, path)
+    except OSError as exc:
+        raise CvxidError(f"cannot write {path} ({exc.strerror}); choose another --out") from None
+    finally:
+        temporary.unlink(missing_ok=True)
+
+
+def write_report(result, out) -> tuple[Path, str | None]:
     """Write ``result.json``, ``report.md``, ``model.json`` (the identified system, for
     :meth:`~cvxid.identified.IdentifiedSystem.load`; one equation also reads with
     :meth:`~cvxid.identified.IdentifiedModel.load`) and the figures (``test_fit``, and when
     the run made them ``path``, ``delay_profile``, ``diagnosis``, ``refinement``,
-    ``orders``) into ``out``."""
+    ``orders``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
+    and what an earlier run had left there (:func:`earlier_run`), or None."""
     out = prepare_folder(out)
+    replaced = earlier_run(out)
     data = result.to_dict()
     system = result.system
     plotters = {
@@ -76,17 +107,19 @@ def write_report(result, out) -> Path:
     for name, plot in plotters.items():
         if plot is not None:
             fig = plot()
-            fig.savefig(out / f"{name}.png", dpi=110)
+            write_atomically(out / f"{name}.png", lambda p: fig.savefig(p, dpi=110, format="png"))
             plt.close(fig)
             figures[name] = f"{name}.png"
     data["figures"] = figures
     try:
-        system.save(out / "model.json")  # reload with IdentifiedSystem.load (or IdentifiedModel.load)
+        model = json.dumps(system.to_dict(), indent=2)  # reload with IdentifiedSystem.load (or IdentifiedModel.load)
+        write_atomically(out / "model.json", lambda p: p.write_text(model))
         data["model_file"] = "model.json"
     except CvxidError as exc:  # user-defined Python terms cannot be written
         data["warnings"] = data["warnings"] + [f"model.json not written: {exc}"]
-    (out / "result.json").write_text(json.dumps(plain(data), indent=2, allow_nan=False))
+    text = json.dumps(plain(data), indent=2, allow_nan=False)
     md = [f"# {result.spec.name}", "", "```", result.summary(), "```", ""]
     md += [f"![{k}]({v})" for k, v in figures.items()]
-    (out / "report.md").write_text("\n".join(md) + "\n")
-    return out / "result.json"
+    write_atomically(out / "report.md", lambda p: p.write_text("\n".join(md) + "\n"))
+    write_atomically(out / "result.json", lambda p: p.write_text(text))  # last: its presence means a whole run
+    return out / "result.json", replaced

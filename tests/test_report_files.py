@@ -1,0 +1,63 @@
+"""The files of a run: written atomically, into a folder that is checked first, and a rerun
+into another run's folder says so."""
+
+import json
+import os
+
+import pytest
+
+from cvxid.app import report as report_module
+from cvxid.app.cli import main
+from cvxid.app.report import write_atomically
+from cvxid.errors import CvxidError
+
+from .test_pipeline import write_spec
+
+
+def test_a_write_that_dies_midway_leaves_the_old_file_whole_and_no_partial_file(tmp_path):
+    target = tmp_path / "result.json"
+    target.write_text('{"name": "before"}')
+
+    def dies(path):
+        path.write_text('{"name": "aft')  # half of the new file ...
+        raise KeyboardInterrupt  # ... then the run is killed
+
+    with pytest.raises(KeyboardInterrupt):
+        write_atomically(target, dies)
+    assert json.loads(target.read_text()) == {"name": "before"}
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["result.json"]
+    write_atomically(target, lambda p: p.write_text('{"name": "after"}'))
+    assert json.loads(target.read_text()) == {"name": "after"}
+
+
+def test_a_write_the_system_refuses_is_a_clear_error(tmp_path):
+    with pytest.raises(CvxidError, match=r"cannot write .*missing/result.json .*choose another --out"):
+        write_atomically(tmp_path / "missing" / "result.json", lambda p: p.write_text("{}"))
+
+
+def test_out_that_is_a_file_or_unwritable_fails_before_any_work(tmp_path, capsys, monkeypatch):
+    import cvxid.app.run
+
+    spec = write_spec(tmp_path)
+    monkeypatch.setattr(cvxid.app.run, "run", lambda spec: pytest.fail("the run started"))
+    afile = tmp_path / "taken"
+    afile.write_text("mine")
+    assert main(["run", str(spec), "--out", str(afile)]) == 2
+    assert "is a file, not a folder" in capsys.readouterr().err and afile.read_text() == "mine"
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    # (tests may run as root, whom permissions do not stop: the check itself is what is tested)
+    monkeypatch.setattr(report_module.os, "access", lambda path, mode: os.fspath(path) != os.fspath(locked))
+    assert main(["run", str(spec), "--out", str(locked)]) == 2
+    assert "cannot write into the output folder" in capsys.readouterr().err and not any(locked.iterdir())
+
+
+def test_a_rerun_into_another_runs_folder_says_so(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(out)]) == 0
+    assert "replacing" not in capsys.readouterr().out
+    other = tmp_path / "other"
+    other.mkdir()
+    assert main(["run", str(write_spec(other)), "--out", str(out)]) == 0
+    assert "replacing the files of an earlier run of 'small'" in capsys.readouterr().out
+    assert not [p for p in out.iterdir() if p.name.endswith(".partial")]
