@@ -78,7 +78,9 @@ def test_identically_zero_target_is_named():
 @pytest.mark.parametrize(
     "text, message",
     [
-        ("[model]\n[data.train.simulate]\nduration = 1e9\ndt = 1e-9\ninput = []\n[truth]\n", "samples; use between"),
+        ("[model]\n[data.train.simulate]\nduration = 1e9\ndt = 1e-9\ninput = []\n[truth]\n",
+         "duration = 1000000000.0 is out of range"),
+        ("[model]\n[data.train.simulate]\nduration = 1e5\ndt = 1e-3\ninput = []\n[truth]\n", "samples; use between"),
         ("[model]\n[data.train]\nfile = '/etc/passwd'\n", "unknown data format"),
         ("[model]\n[data.train]\nfile = 'x.csv'\n[fit]\nlambdas = { min = 1, max = 0.1 }\n", "larger than max"),
         ("[model.library]\norder = 'three'\n[data.train]\nfile = 'x.csv'\n", "must be a number"),

@@ -32,6 +32,16 @@ Table = Mapping[str, Any]
 
 
 # ---------------------------------------------------------------------- checking helpers
+MAX_ORDER = 8
+"""The largest polynomial library order: (N + 1)^2 - 1 terms, 80 at N = 8."""
+ORDER_FIX = ("a polynomial library of order N has (N + 1)^2 - 1 nearly collinear terms; add single terms with "
+             "extra = [...] instead")
+MAX_SOLVES = 200_000
+"""Convex solves a spec may ask for without ``[fit] allow_large = true`` (minutes, at a few
+milliseconds each)."""
+ALGEBRA_FIX = "the defaults (n = highest derivative, m = n + 1) remove every initial condition"
+
+
 def _table(parent: Table, key: str, where: str, allowed: set[str], required: bool = False) -> dict:
     value = parent.get(key)
     path = f"{where}.{key}" if where else key
@@ -49,7 +59,10 @@ def _table(parent: Table, key: str, where: str, allowed: set[str], required: boo
     return dict(value)
 
 
-def _number(table: Table, key: str, where: str, default=None, positive=False, integer=False):
+def _number(table: Table, key: str, where: str, default=None, positive=False, integer=False,
+            within: tuple[float | None, float | None] = (None, None), fix: str = ""):
+    """A finite number (``integer``: whole; ``positive``: > 0; ``within``: inclusive bounds,
+    either None), else an error naming the key, the value, the allowed range and ``fix``."""
     value = table.get(key, default)
     if value is None:
         raise CvxidError(f"spec: [{where}] needs '{key}'")
@@ -61,6 +74,12 @@ def _number(table: Table, key: str, where: str, default=None, positive=False, in
         raise CvxidError(f"spec: [{where}] {key} must be a whole number, got {value!r}")
     if positive and value <= 0:
         raise CvxidError(f"spec: [{where}] {key} must be positive, got {value!r}")
+    low, high = within
+    if (low is not None and value < low) or (high is not None and value > high):
+        allowed = (f"{low:g} to {high:g}" if low is not None and high is not None
+                   else f"at least {low:g}" if low is not None else f"at most {high:g}")
+        raise CvxidError(f"spec: [{where}] {key} = {value!r} is out of range (allowed: {allowed})"
+                         + (f"; {fix}" if fix else ""))
     return int(value) if integer else float(value)
 
 
@@ -192,7 +211,7 @@ DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine", "window", "loss"}
+            "refine", "window", "loss", "allow_large"}
 
 
 def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
@@ -271,8 +290,10 @@ def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
     return DiagnoseSettings(
         candidates=candidates,
         refine=_bool(d, "refine", "diagnose", False),
-        min_improvement=_number(d, "min_improvement", "diagnose", 0.2, positive=True),
-        max_steps=_number(d, "max_steps", "diagnose", 5, positive=True, integer=True),
+        min_improvement=_number(d, "min_improvement", "diagnose", 0.2, positive=True, within=(None, 10),
+                                fix="0.2 accepts an effect that lowers the error by 20 %"),
+        max_steps=_number(d, "max_steps", "diagnose", 5, integer=True, within=(1, 20),
+                          fix="each step adds one effect"),
     )
 
 
@@ -292,7 +313,8 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         raise CvxidError(f"spec: [{where}.library] select applies to a terms list (an order's library is always "
                          "selected); remove it or list the terms")
     else:
-        order = _number(lib_t, "order", f"{where}.library", 3, positive=True, integer=True)
+        order = _number(lib_t, "order", f"{where}.library", 3, integer=True, within=(1, MAX_ORDER),
+                        fix=ORDER_FIX)
         polynomial = (order, _bool(lib_t, "cross", f"{where}.library", True), extra)
         library = Library.polynomial(order, polynomial[1], coord)
     library = library + [resolve_term(e, coords) for e in extra]
@@ -308,10 +330,12 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             coordinate=signal.rstrip("'"),
             derivative=len(signal) - len(signal.rstrip("'")),
             gain=_number(d, "gain", dw) if "gain" in d else None,
-            taylor_order=_number(d, "taylor_order", dw, 3, positive=True, integer=True),
+            taylor_order=_number(d, "taylor_order", dw, 3, integer=True, within=(1, 7),
+                                 fix="higher Taylor orders amplify the noise; use method = 'exact' instead"),
             method=_string(d, "method", dw, "taylor", choices=METHODS),
-            tau_min=_number(d, "tau_min", dw, 0.0),
-            tau_max=_number(d, "tau_max", dw, 0.5, positive=True),
+            tau_min=_number(d, "tau_min", dw, 0.0, within=(0, None), fix="a delay cannot be negative"),
+            tau_max=_number(d, "tau_max", dw, 0.5, positive=True, within=(None, 1e4),
+                            fix="the record must last at least twice tau_max"),
             history=_string(d, "history", dw, "measured", choices=HISTORIES),
         )
         if delay.exact and "taylor_order" in d:
@@ -341,8 +365,8 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         nonnegative=nonneg,
         names=names,
         orders=(
-            _number(alg, "n", f"{where}.algebraic", integer=True) if "n" in alg else None,
-            _number(alg, "m", f"{where}.algebraic", integer=True) if "m" in alg else None,
+            _number(alg, "n", f"{where}.algebraic", integer=True, within=(0, 10), fix=ALGEBRA_FIX) if "n" in alg else None,
+            _number(alg, "m", f"{where}.algebraic", integer=True, within=(1, 12), fix=ALGEBRA_FIX) if "m" in alg else None,
         ),
         keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
         others=tuple(others),
@@ -355,9 +379,11 @@ def _fit(table: Table) -> FitSettings:
     lambdas = np.logspace(-6, 2, 50)
     if "lambdas" in table:
         lt = _table(table, "lambdas", where, {"min", "max", "count"})
-        lo = _number(lt, "min", "fit.lambdas", positive=True)
-        hi = _number(lt, "max", "fit.lambdas", positive=True)
-        count = _number(lt, "count", "fit.lambdas", 50, positive=True, integer=True)
+        lo = _number(lt, "min", "fit.lambdas", positive=True, within=(1e-16, 1e12))
+        hi = _number(lt, "max", "fit.lambdas", positive=True, within=(1e-16, 1e12),
+                     fix="the data are scaled to unit size: lambdas past 100 keep no term")
+        count = _number(lt, "count", "fit.lambdas", 50, integer=True, within=(1, 1000),
+                        fix="each lambda is a convex solve; 30 to 200 resolve a path")
         if lo > hi:
             raise CvxidError(f"spec: [fit.lambdas] min ({lo:g}) is larger than max ({hi:g})")
         lambdas = np.logspace(np.log10(lo), np.log10(hi), count)
@@ -365,7 +391,8 @@ def _fit(table: Table) -> FitSettings:
     solver = _string(table, "solver", where, "CLARABEL").upper()
     if solver not in SOLVERS:
         raise CvxidError(f"spec: [fit] solver must be one of {', '.join(SOLVERS)}, got '{solver}'")
-    return FitSettings(
+    n_jobs(table)
+    settings = FitSettings(
         estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "lstsq", "stepwise_oe")),
         lambdas=lambdas,
         velocity=velocity,
@@ -378,6 +405,16 @@ def _fit(table: Table) -> FitSettings:
         window=_window(table, where),
         loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
     )
+    solves = len(lambdas) * (settings.bootstrap.samples if settings.bootstrap else 1) * max(len(settings.orders), 1)
+    if settings.velocity == "auto":
+        solves *= 3
+    if solves > MAX_SOLVES and not _bool(table, "allow_large", where, False):
+        raise CvxidError(
+            f"spec: [fit] asks for {solves:,} convex solves (lambdas count x bootstrap samples x orders"
+            f"{' x 3 velocity estimators' if settings.velocity == 'auto' else ''}), hours of work; reduce them, or "
+            "set allow_large = true in [fit] to run it anyway"
+        )
+    return settings
 
 
 def _window(table: Table, where: str) -> float | str | Windows:
@@ -392,8 +429,8 @@ def _window(table: Table, where: str) -> float | str | Windows:
             raise CvxidError(f"spec: [{where}] window as a table names one kind: {{ restart = 0.05 }} or "
                              "{ sliding = 0.5 }")
         ((kind, _),) = kinds.items()
-        return Windows(_number(kinds, kind, f"{where}.window", positive=True), kind)
-    return _number(table, "window", where, positive=True)
+        return Windows(_number(kinds, kind, f"{where}.window", positive=True, within=(None, 1e6)), kind)
+    return _number(table, "window", where, positive=True, within=(None, 1e6))
 
 
 def _bootstrap(table: Table) -> BootstrapSettings | None:
@@ -401,21 +438,32 @@ def _bootstrap(table: Table) -> BootstrapSettings | None:
         return None
     b = _table(table, "bootstrap", "fit", {"samples", "fraction", "seed"})
     return BootstrapSettings(
-        samples=_number(b, "samples", "fit.bootstrap", 30, positive=True, integer=True),
-        fraction=_number(b, "fraction", "fit.bootstrap", 0.5, positive=True),
-        seed=_number(b, "seed", "fit.bootstrap", 0, integer=True),
-        n_jobs=_number(table, "n_jobs", "fit", 1, integer=True),
+        samples=_number(b, "samples", "fit.bootstrap", 30, integer=True, within=(2, 10_000),
+                        fix="a few hundred resamples give stable spreads"),
+        fraction=_number(b, "fraction", "fit.bootstrap", 0.5, positive=True, within=(None, 1),
+                         fix="the share of rows in each resample"),
+        seed=_number(b, "seed", "fit.bootstrap", 0, integer=True, within=(0, 2**32 - 1)),
+        n_jobs=n_jobs(table),
     )
+
+
+def n_jobs(table: Table) -> int:
+    """``[fit] n_jobs``: parallel workers, -1 for every core (joblib's convention)."""
+    value = _number(table, "n_jobs", "fit", 1, integer=True, within=(-1, 256),
+                    fix="-1 uses every core, 1 runs serially")
+    if value == 0:
+        raise CvxidError("spec: [fit] n_jobs = 0 is no worker; use 1 (serial), a count, or -1 (every core)")
+    return value
 
 
 def _orders(table: Table) -> tuple[int, ...]:
     if "orders" not in table:
         return ()
     o = _table(table, "orders", "fit", {"min", "max"})
-    lo = _number(o, "min", "fit.orders", 1, positive=True, integer=True)
-    hi = _number(o, "max", "fit.orders", positive=True, integer=True)
-    if lo > hi or hi > 12:
-        raise CvxidError(f"spec: [fit.orders] needs 1 <= min <= max <= 12, got {lo}..{hi}")
+    lo = _number(o, "min", "fit.orders", 1, integer=True, within=(1, MAX_ORDER), fix=ORDER_FIX)
+    hi = _number(o, "max", "fit.orders", integer=True, within=(1, MAX_ORDER), fix=ORDER_FIX)
+    if lo > hi:
+        raise CvxidError(f"spec: [fit.orders] min ({lo}) is larger than max ({hi})")
     return tuple(range(lo, hi + 1))
 
 
@@ -488,8 +536,8 @@ def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
 def simulation_setup(sim: Table, where: str):
     """Time grid, input function, output and input noise levels and the seeded generator
     of a ``[data.*.simulate]`` table."""
-    duration = _number(sim, "duration", where, positive=True)
-    dt = _number(sim, "dt", where, positive=True)
+    duration = _number(sim, "duration", where, positive=True, within=(None, 1e6))
+    dt = _number(sim, "dt", where, positive=True, within=(1e-9, None))
     n = int(round(duration / dt)) + 1
     if n < 20 or n > 5_000_000:
         raise CvxidError(f"spec: [{where}] duration/dt gives {n} samples; use between 20 and 5,000,000")
@@ -498,6 +546,6 @@ def simulation_setup(sim: Table, where: str):
         raise CvxidError(f"spec: [{where}] input must be a list of tables like {{kind = \"sine\", ...}}")
     force = excitation(components, where + ".input")
     noise = _table(sim, "noise", where, {"output", "input"})
-    rng = np.random.default_rng(_number(sim, "seed", where, 0, integer=True))
-    return (np.arange(n) * dt, force, _number(noise, "output", where + ".noise", 0.0),
-            _number(noise, "input", where + ".noise", 0.0), rng)
+    rng = np.random.default_rng(_number(sim, "seed", where, 0, integer=True, within=(0, 2**32 - 1)))
+    return (np.arange(n) * dt, force, _number(noise, "output", where + ".noise", 0.0, within=(0, None)),
+            _number(noise, "input", where + ".noise", 0.0, within=(0, None)), rng)
