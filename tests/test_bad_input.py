@@ -90,3 +90,28 @@ def test_identically_zero_target_is_named():
 def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):
     err = cli_error(tmp_path, capsys, text)
     assert re.search(message, err), err
+
+
+def test_the_tied_refit_falls_back_too_and_fails_only_when_every_solver_does(monkeypatch):
+    import cvxid.identify.problem as problem_module
+
+    P = np.column_stack([np.sin(T), np.cos(T), T])
+    prob = Problem.from_arrays(P, np.sin(T) + 0.5 * np.cos(T), ["a", "b", "c"], ties=[("a", "b", 2.0)])
+    reference = prob.refit(np.ones(3, bool)).coefficients
+    solve = cp.Problem.solve
+
+    def clarabel_infeasible(self, *args, solver=None, **kwargs):
+        if solver == "CLARABEL":
+            self._status = cp.INFEASIBLE
+            return None
+        return solve(self, *args, solver=solver, **kwargs)
+
+    monkeypatch.setattr(cp.Problem, "solve", clarabel_infeasible)
+    with pytest.warns(CvxidWarning, match=r"tied least-squares refit: CLARABEL: status 'infeasible' \(infeasible, "
+                                          r"though all zero .*\); OSQP answered instead"):
+        fit = prob.refit(np.ones(3, bool))
+    assert fit.coefficients == pytest.approx(reference, rel=1e-4, abs=1e-6)
+    assert fit.coefficients[0] == pytest.approx(2.0 * fit.coefficients[1], rel=1e-6)
+    monkeypatch.setattr(problem_module.cp, "installed_solvers", lambda: ["CLARABEL"])
+    with pytest.raises(SolverFailure, match="the tied least-squares refit failed with every solver"):
+        prob.refit(np.ones(3, bool))

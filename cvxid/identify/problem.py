@@ -338,14 +338,23 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
     cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
     cons += [c[where[a]] == _tie_factor(reduced, names, a, b, f) * c[where[b]] for a, b, f in ties]
     problem = cp.Problem(cp.Minimize(cp.sum_squares(reduced.R[:, idx] @ c - reduced.r)), cons)
-    try:
-        problem.solve(solver="CLARABEL", warm_start=False, **SOLVER_SETTINGS["CLARABEL"])
-    except cp.error.SolverError as exc:
-        raise SolverFailure(f"the tied least-squares refit failed ({exc})") from None
-    if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE):  # homogeneous: a numerical failure
-        raise SolverFailure("the tied least-squares refit was reported infeasible, though all zero satisfies the "
-                            "signs and ties: a numerical failure; rescale the data or drop a tie")
-    if problem.status != cp.OPTIMAL:
-        raise SolverFailure(f"the tied least-squares refit stopped with status '{problem.status}'")
+    installed, failures = set(cp.installed_solvers()), []
+    for solver in [s for s in SOLVERS if s in installed]:
+        try:
+            problem.solve(solver=solver, warm_start=False, **SOLVER_SETTINGS[solver])
+        except cp.error.SolverError as exc:
+            failures.append(f"{solver}: {exc}")
+            continue
+        if problem.status == cp.OPTIMAL and c.value is not None:
+            break
+        failures.append(f"{solver}: status '{problem.status}'"
+                        + (" (infeasible, though all zero satisfies the signs and ties: a numerical failure)"
+                           if problem.status in (cp.INFEASIBLE, cp.INFEASIBLE_INACCURATE) else ""))
+    else:
+        raise SolverFailure(f"the tied least-squares refit failed with every solver ({'; '.join(failures)}); "
+                            "rescale the data or drop a tie")
+    if failures:
+        warnings.warn(f"tied least-squares refit: {'; '.join(failures)}; {solver} answered instead", CvxidWarning,
+                      stacklevel=2)
     scaled[idx] = c.value
     return scaled
