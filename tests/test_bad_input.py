@@ -115,3 +115,10 @@ def test_the_tied_refit_falls_back_too_and_fails_only_when_every_solver_does(mon
     monkeypatch.setattr(problem_module.cp, "installed_solvers", lambda: ["CLARABEL"])
     with pytest.raises(SolverFailure, match="the tied least-squares refit failed with every solver"):
         prob.refit(np.ones(3, bool))
+
+
+@pytest.mark.parametrize("scale", [1e300, 1e-310])
+def test_absurd_magnitudes_are_an_error_that_says_rescale(scale):
+    with pytest.raises(CvxidError, match=r"signal 'output x' reaches .* in magnitude.*rescale it \(other units\)"):
+        Experiment(T, {"x": np.sin(T) * scale}, {"f": np.cos(T)})
+    assert Experiment(T, {"x": np.sin(T) * 1e-6}, {"f": np.cos(T)}).output("x").max() > 0  # small units are fine

@@ -44,7 +44,20 @@ def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> n
             f"value(s), the first at sample {first}; repair them, or for missing samples (NaN) "
             "load with gaps = true so that the integrals restart after each gap"
         )
+    finite = arr[np.isfinite(arr)]
+    size = float(np.max(np.abs(finite))) if finite.size else 0.0
+    if size > MAGNITUDES[1] or 0 < size < MAGNITUDES[0]:
+        raise CvxidError(
+            f"experiment '{experiment}': signal '{name}' reaches {size:.3g} in magnitude, where the squares and "
+            f"integrals of the regression overflow or vanish; rescale it (other units) to lie within "
+            f"{MAGNITUDES[0]:g} … {MAGNITUDES[1]:g}"
+        )
     return arr
+
+
+MAGNITUDES = (1e-100, 1e100)
+"""The largest magnitude a signal may reach lies within these bounds (1e300 overflows the
+least squares, 1e-310 is subnormal): the data are rescaled by the user, never silently."""
 
 
 @dataclass(frozen=True)
