@@ -19,7 +19,7 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
-from cvxid.initial_state import check_initial_state, estimate_initial_state
+from cvxid.initial_state import free_run
 from cvxid.errors import CvxidError
 from cvxid.metrics import fit_percent, noise_ceiling_percent
 from cvxid.model.equation import ModelSpec
@@ -360,16 +360,12 @@ class IdentifiedSystem:
         ``initial`` names, ``"estimated"`` (least squares over the record, with the fit
         from the record's own start beside it as ``record_fit_percent``) or ``"record"``.
         A diverging simulation gives fit -inf."""
-        check_initial_state(initial)
         run, measured = self.simulator(experiment), {c: experiment.output(c) for c in self.coordinates}
-        state = self.initial_state(experiment)
-        record = None
+        state, record = self.initial_state(experiment), None
         try:
-            sim = run(state)
-            if initial == "estimated":
-                record = {c: fit_percent(measured[c], sim[c]) for c in self.coordinates}
-                state = estimate_initial_state(run, measured, state)
-                sim = run(state)
+            state, sim, own = free_run(run, measured, state, initial)
+            if own is not None:
+                record = {c: fit_percent(measured[c], own[c]) for c in self.coordinates}
         except SimulationDiverged:
             sim = None
         rows = []

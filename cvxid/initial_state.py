@@ -42,8 +42,22 @@ State = dict[str, tuple[float, float]]
 def check_initial_state(value: str) -> str:
     """``value`` if it names a way to start a comparison, else a clear error."""
     if value not in INITIAL_STATES:
-        raise CvxidError(f"initial_state must be one of {', '.join(INITIAL_STATES)}, got {value!r}")
+        raise CvxidError(f"initial must be one of {', '.join(INITIAL_STATES)}, got {value!r}")
     return value
+
+
+def free_run(simulate: Callable[[State], dict[str, np.ndarray]], measured: dict[str, np.ndarray], own: State,
+             initial: str) -> tuple[State, dict[str, np.ndarray], dict[str, np.ndarray] | None]:
+    """The free run a comparison shows: from the record's ``own`` start (``initial =
+    "record"``), or from the start :func:`estimate_initial_state` finds, with the run from
+    the record's own start kept beside it.  Returns the start, its run and the own-start run
+    (None unless estimated); raises :class:`~cvxid.simulate.SimulationDiverged`."""
+    check_initial_state(initial)
+    sim = simulate(own)
+    if initial == "record":
+        return own, sim, None
+    state = estimate_initial_state(simulate, measured, own)
+    return state, simulate(state), sim
 
 
 def estimate_initial_state(simulate: Callable[[State], dict[str, np.ndarray]],

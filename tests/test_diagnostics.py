@@ -187,5 +187,5 @@ def test_compare_estimates_the_start_a_noisy_record_hides():
     y = test.output("x")[k:]
     assert estimated.ceiling_percent == pytest.approx(100 * (1 - 0.03 / np.std(y)), abs=0.3)
     assert estimated.fit_percent == pytest.approx(estimated.ceiling_percent, abs=0.3)
-    with pytest.raises(CvxidError, match="initial_state must be one of estimated, record"):
+    with pytest.raises(CvxidError, match="initial must be one of estimated, record"):
         compare(true, test, initial="zero")

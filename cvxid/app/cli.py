@@ -12,7 +12,6 @@ import sys
 import warnings
 
 from cvxid import __version__
-from cvxid.spec.shipped import resolve_spec
 from cvxid.errors import CvxidError
 from cvxid.progress import set_quiet
 
@@ -169,8 +168,6 @@ def main(argv=None) -> int:
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
-        if getattr(args, "spec", None) and not getattr(args, "heldout", False):
-            args.spec = str(resolve_spec(args.spec))
         return {"run": _run, "bench": _bench, "problems": _problems}[args.command](args)
     except CvxidError as exc:
         print(f"cvxid: error: {exc}", file=sys.stderr)

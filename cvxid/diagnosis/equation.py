@@ -31,7 +31,7 @@ from scipy.signal import savgol_filter
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.initial_state import check_initial_state, estimate_initial_state
+from cvxid.initial_state import check_initial_state, free_run
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
 from cvxid.metrics import fit_percent, noise_ceiling_percent
@@ -124,13 +124,13 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     try:
         run = model.simulator(experiment)
         guess = model.initial_state(experiment)
-        state = (guess[0] if x0 is None else x0, guess[1] if v0 is None else v0)
-        sim = run(*state)[0][start:]
-        if initial == "estimated":
-            record_fit, record_sim = fit_percent(measured, sim), sim
-            state = estimate_initial_state(lambda s: {coord: run(*s[coord])[0][start:]},
-                                           {coord: measured}, {coord: state})[coord]
-            sim = run(*state)[0][start:]
+        own = (guess[0] if x0 is None else x0, guess[1] if v0 is None else v0)
+        starts, sims, record = free_run(lambda s: {coord: run(*s[coord])[0][start:]}, {coord: measured},
+                                        {coord: own}, "record" if given else initial)
+        state, sim = starts[coord], sims[coord]
+        if record is not None:
+            record_sim = record[coord]
+            record_fit = fit_percent(measured, record_sim)
         free, nrmse, message = fit_percent(measured, sim), float(np.linalg.norm(measured - sim)
                                                                 / np.linalg.norm(measured - measured.mean())), ""
     except SimulationDiverged as exc:

@@ -197,12 +197,6 @@ class Problem:
             return f"it stopped with status '{status}'"
         return None
 
-    def fallbacks(self) -> list[str]:
-        """The solvers tried in turn: the chosen one, then every other installed one of
-        :data:`SOLVERS`."""
-        installed = set(cp.installed_solvers())
-        return [self.solver] + [s for s in SOLVERS if s != self.solver and s in installed]
-
     def _finish(self, lam, scaled, status, seconds, objective=None, solver: str | None = None) -> Fit:
         red = self.reduced
         scaled = np.asarray(scaled, dtype=float)
@@ -233,7 +227,7 @@ class Problem:
         self.lam.value = lam
         start = time.perf_counter()
         failures, inaccurate = [], None
-        for solver in self.fallbacks():
+        for solver in fallbacks(self.solver):
             failure = self._answer(solver)
             if failure is None:
                 status, value = cp.OPTIMAL, self.c.value
@@ -307,6 +301,12 @@ class Problem:
     __repr__ = __str__
 
 
+def fallbacks(first: str) -> list[str]:
+    """The solvers tried in turn: ``first``, then every other installed one of :data:`SOLVERS`."""
+    installed = set(cp.installed_solvers())
+    return [first] + [s for s in SOLVERS if s != first and s in installed]
+
+
 def _tie_factor(reduced: Reduced, names, a: str, b: str, factor: float) -> float:
     """The tie :math:`c_a = \rho c_b` in scaled units."""
     scale = reduced.column_scale
@@ -338,8 +338,8 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
     cons = [c[j] >= 0 for j, lo in enumerate(lower) if lo == 0]
     cons += [c[where[a]] == _tie_factor(reduced, names, a, b, f) * c[where[b]] for a, b, f in ties]
     problem = cp.Problem(cp.Minimize(cp.sum_squares(reduced.R[:, idx] @ c - reduced.r)), cons)
-    installed, failures = set(cp.installed_solvers()), []
-    for solver in [s for s in SOLVERS if s in installed]:
+    failures = []
+    for solver in fallbacks("CLARABEL"):
         try:
             problem.solve(solver=solver, warm_start=False, **SOLVER_SETTINGS[solver])
         except cp.error.SolverError as exc:
