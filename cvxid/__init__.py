@@ -14,6 +14,7 @@ The main entry points:
 from cvxid.app.result import RunResult
 from cvxid.app.run import order_search, refine_spec, run
 from cvxid.data.experiment import Experiment, from_frame, load
+from cvxid.data.sensor import sensor_faults, without_faults
 from cvxid.diagnosis.equation import compare, diagnose, residuals, with_effect
 from cvxid.diagnosis.equation import refine as refine_model
 from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
@@ -34,7 +35,8 @@ __all__ = [
     "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "IdentifiedSystem",
     "Library", "ModelSpec", "Path", "Problem", "Regression", "RegressionBuilder", "RunResult", "SolverFailure",
     "SystemBuilder", "SystemSpec", "build_regression", "compare", "diagnose", "from_frame", "load", "load_problem",
-    "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run", "with_effect",
+    "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run", "sensor_faults",
+    "with_effect", "without_faults",
 ]
 
 

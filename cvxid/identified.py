@@ -21,7 +21,7 @@ import pandas as pd
 from cvxid.data.experiment import Experiment
 from cvxid.initial_state import free_run
 from cvxid.errors import CvxidError
-from cvxid.metrics import fit_percent, noise_ceiling_percent
+from cvxid.metrics import fit_percent, noise_ceiling_percent, relative_error_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import latex_symbol
 from cvxid.regression.history import padded, simulation_start, start_index
@@ -151,7 +151,7 @@ class IdentifiedModel:
         frame = pd.DataFrame({"estimate": pd.Series(phys)})
         if truth:
             frame["truth"] = pd.Series({k: truth.get(k, np.nan) for k in phys})
-            frame["error %"] = 100 * (frame["estimate"] - frame["truth"]) / frame["truth"].abs()
+            frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         frame.index.name = "parameter"
         return frame
 

@@ -29,6 +29,14 @@ def noise_ceiling_percent(y: np.ndarray) -> float:
     return float(100 * (1 - noise_level(y) / np.std(y)))
 
 
+def relative_error_percent(estimate, truth):
+    """``100 (estimate - truth) / |truth|``, NaN where the truth is 0 (no relative scale:
+    the estimate itself is the error there)."""
+    estimate, truth = np.asarray(estimate, float), np.asarray(truth, float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(truth != 0, 100 * (estimate - truth) / np.abs(truth), np.nan)
+
+
 def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
     """The normalised fit (%) of ``yhat`` to ``y`` over the samples ``yhat`` covers (a
     simulation that starts after the record's start is NaN before it)."""

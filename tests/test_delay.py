@@ -133,3 +133,57 @@ def test_a_start_outside_the_bounds_is_projected_and_said():
     with pytest.warns(CvxidWarning, match=r"started outside its bounds: m = -0.3 \(set to 1e-09\).*tau = 0.9"):
         fit = output_error(IdentifiedModel(model(), wrong, tau=0.9), exp, step=2e-3, max_iterations=5)
     assert fit.parameters["m"] > 0 and 0 <= fit.parameters["tau"] <= model().delay.tau_max
+
+
+NO_DELAY = """name = "feedback_without_delay"
+[truth]
+mass = 1.0
+coefficients = { "x'" = 0.4, "x" = 6.0 }
+delay = { signal = "x", gain = 1.5, tau = 0.0 }
+[data.train.simulate]
+duration = 6.0
+dt = 1e-3
+x0 = 0.3
+seed = 1
+noise = { output = 0.001, input = 0.001 }
+input = [ { kind = "sine", amplitude = 3.0, omega = 1.9 }, { kind = "sine", amplitude = 2.0, omega = 4.7, phase = 1.0 },
+          { kind = "sine", amplitude = 1.5, omega = 8.3, phase = 2.0 } ]
+[data.test.simulate]
+duration = 6.0
+dt = 1e-3
+x0 = -0.2
+seed = 2
+noise = { output = 0.001, input = 0.001 }
+input = [ { kind = "sine", amplitude = 2.5, omega = 2.9 }, { kind = "sine", amplitude = 2.5, omega = 6.1, phase = 1.0 } ]
+[model.library]
+terms = ["x", "x'"]
+[model.delay]
+signal = "x"
+method = "exact"
+tau_max = 0.4
+[fit]
+estimator = "lstsq"
+refine = "output_error"
+"""
+
+
+def test_feedback_without_delay_is_identified_with_a_zero_delay(tmp_path):
+    """A loop closed without delay, identified by a user who allowed one (gain unknown):
+    the delay is 0 (the polish used to report 1e-10 with an interval of nan … nan), its
+    interval lies in [0, tau_max] and covers 0, the free run fits the test record (measured
+    99.8 %, the noise allows 99.8 %) and the relative error of a true 0 is NaN, not inf."""
+    import json
+
+    from cvxid.app.cli import main
+
+    (tmp_path / "spec.toml").write_text(NO_DELAY)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    low, high = result["tau"]["interval"]
+    assert result["tau"]["estimate"] <= 0.01 and 0 == low <= high <= 0.1
+    assert result["test_fit_percent"] >= 99.0
+    # gain and stiffness are one column at tau = 0: their difference is identified, and the
+    # warning says so (the run found gain -438, k -434: k - gain = 4.50 for a true 4.5)
+    k, gain = result["physical"]["x"], result["physical"]["gain"]
+    assert k - gain == pytest.approx(6.0 - 1.5, rel=0.01)
+    assert any("not identified separately" in w and "Give the gain" in w for w in result["warnings"])

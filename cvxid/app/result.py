@@ -16,6 +16,7 @@ import pandas as pd
 from cvxid.app.report import records
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
+from cvxid.metrics import relative_error_percent
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
 from cvxid.identify.orders import OrderSearch
@@ -81,7 +82,7 @@ class RunResult:
         frame = pd.DataFrame({"estimate": self.physical})
         if truth is not None:
             frame["truth"] = pd.Series(truth).reindex(frame.index)
-            frame["error %"] = 100 * (frame["estimate"] / frame["truth"] - 1)
+            frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         if self.polish is not None:
             se = {self._physical_name(k): v for k, v in self.polish.standard_errors.items()}
             frame["std error"] = pd.Series(se).reindex(frame.index)

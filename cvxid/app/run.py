@@ -64,9 +64,33 @@ def run(spec) -> RunResult:
         else:
             result = _identify(spec)
         _compare(result)
+        _warn_confounded_gain(result)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
     result.seconds = time.perf_counter() - start
     return result
+
+
+def _warn_confounded_gain(out: RunResult) -> None:
+    """An estimated feedback gain whose delay may be 0 is not identified: at
+    :math:`\tau = 0` the feedback :math:`b\,x(t-\tau)` is the library's own column
+    :math:`x`, and only the difference of their coefficients is."""
+    interval = (out.tau or {}).get("interval")
+    if not interval or interval[0] > 0:
+        return
+    for model in out.system.models.values():
+        spec = model.spec
+        if spec.delay is None or spec.delay.gain is not None:
+            continue
+        signal = spec.delay.coordinate + "'" * spec.delay.derivative
+        if signal not in {t.name for t in spec.library}:
+            continue
+        name, physical = spec.parameter_name(signal), model.physical
+        warnings.warn(
+            f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
+            f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
+            f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}) are not identified separately; their "
+            f"difference {name} - gain = {physical[name] - physical['gain']:.4g} is. Give the gain ([model.delay] "
+            "gain = …), or remove [model.delay] if the loop has no delay", CvxidWarning, stacklevel=2)
 
 
 def _best_velocity(spec) -> RunResult:

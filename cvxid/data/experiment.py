@@ -13,6 +13,7 @@ from typing import Mapping
 
 import numpy as np
 
+from cvxid.data.sensor import checked
 from cvxid.errors import CvxidError
 
 MIN_SAMPLES = 20
@@ -243,12 +244,15 @@ def load(
     velocities: Mapping[str, str] | None = None,
     name: str | None = None,
     gaps: bool = False,
+    faults: str = "warn",
 ) -> Experiment:
     """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
 
     ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
-    variable names in the file.
+    variable names in the file.  The outputs are checked for sensor faults (clipping, a
+    frozen stretch, outlier samples; :mod:`cvxid.data.sensor`): ``faults = "warn"`` warns
+    about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -257,22 +261,24 @@ def load(
     if not path.is_file():
         raise CvxidError(f"data file not found: {path}")
     reader, what = READERS[suffix]
-    return _experiment(reader(path), what, path, time, outputs, inputs, velocities, name or path.stem, gaps)
+    return _experiment(reader(path), what, path, time, outputs, inputs, velocities, name or path.stem, gaps,
+                       faults)
 
 
 def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],
-               velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False) -> Experiment:
-    """An experiment from a pandas DataFrame, by column names."""
+               velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False,
+               faults: str = "warn") -> Experiment:
+    """An experiment from a pandas DataFrame, by column names (sensor check as :func:`load`)."""
     columns = {str(c): frame[c].to_numpy() for c in frame.columns}
-    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps)
+    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults)
 
 
-def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps) -> Experiment:
-    return Experiment(
+def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults) -> Experiment:
+    return checked(Experiment(
         _pick(columns, time, what, source),
         {k: _pick(columns, v, what, source) for k, v in outputs.items()},
         {k: _pick(columns, v, what, source) for k, v in inputs.items()},
         name=name,
         velocities={k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()},
         gaps=gaps,
-    )
+    ), faults)

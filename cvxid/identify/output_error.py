@@ -61,6 +61,10 @@ an unknown gain whole ranges of delays fit equally well: a local fit cannot see 
 PROFILE_ITERATIONS = 12
 """Iterations of each fixed-delay fit of the profile (warm-started from its neighbour)."""
 
+BOUND_SNAP = 1e-9
+"""A parameter this close to one of its bounds is reported at the bound (the solver keeps
+its iterates strictly inside, e.g. a delay of 1e-10 for 0)."""
+
 FINE = 7
 """Delays of the finer grid around the profile's best point (between its two neighbours)."""
 
@@ -101,9 +105,12 @@ class PolishResult:
         error is not significantly worse)."""
         value, se = self.parameters[name], self.standard_errors[name]
         low, high = value - z * se, value + z * se
-        if name == "tau" and self.profile is not None:
-            low, high = min(low, self.profile.interval[0]), max(high, self.profile.interval[1])
-        return low, high
+        if name != "tau":
+            return low, high
+        if self.profile is not None:  # the hull, within the delays searched
+            low = max(np.nanmin([low, self.profile.interval[0]]), self.profile.taus[0])
+            high = min(np.nanmax([high, self.profile.interval[1]]), self.profile.taus[-1])
+        return max(float(low), 0.0), float(high)
 
 
 def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
@@ -267,16 +274,21 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     before = float(np.sqrt(np.mean(fun(problem.start) ** 2)))
     sol = least_squares(fun, problem.start, jac=jac, bounds=problem.bounds, method="trf", x_scale="jac",
                         max_nfev=max_iterations)
-    theta = sol.x
+    lower, upper = problem.bounds  # the solver stays strictly inside: a bound it reached is the bound
+    theta = np.where(np.abs(sol.x - lower) <= BOUND_SNAP, lower, np.where(np.abs(sol.x - upper) <= BOUND_SNAP,
+                                                                          upper, sol.x))
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     dof = max(r.size - theta.size, 1)
     n_eff = effective_rows(r)
+    se = np.full(theta.size, np.nan)
+    seen = np.any(sol.jac != 0, axis=0)  # a delay below the simulator's resolution moves nothing
     try:  # coloured residuals carry fewer independent samples than they have
-        cov = np.linalg.inv(sol.jac.T @ sol.jac) * float(r @ r) / dof * r.size / n_eff
-        se = np.sqrt(np.clip(np.diag(cov), 0, None))
+        J = sol.jac[:, seen]
+        cov = np.linalg.inv(J.T @ J) * float(r @ r) / dof * r.size / n_eff
+        se[seen] = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
-        se = np.full(theta.size, np.nan)
+        pass
     errors = dict(zip(problem.names, map(float, se)))
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
     if fixed_tau is not None and problem.delay is not None:

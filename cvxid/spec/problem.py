@@ -15,6 +15,7 @@ import numpy as np
 
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import Experiment, load
+from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
 from cvxid.identify.path import SELECTION_RULES
@@ -192,6 +193,7 @@ class ProblemSpec:
             velocities=_names(velocity, first, where, "velocity") if velocity else None,
             name=which,
             gaps=_bool(table, "gaps", where, False),
+            faults=_string(table, "faults", where, "warn", choices=FAULT_HANDLING),
         )
 
     def __repr__(self) -> str:
@@ -207,7 +209,7 @@ class ProblemSpec:
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
-DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps"}
+DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps", "faults"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
@@ -269,6 +271,10 @@ def data_sections(raw: Table) -> dict[str, dict]:
     for which, table in data.items():
         if ("file" in table) == ("simulate" in table):
             raise CvxidError(f"spec: [data.{which}] needs exactly one of 'file' or a [data.{which}.simulate] table")
+        if "faults" in table:
+            if "simulate" in table:
+                raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
+            _string(table, "faults", f"data.{which}", choices=FAULT_HANDLING)
     return data
 
 

@@ -1,0 +1,197 @@
+r"""Sensor faults a measured record can show: a clipped (saturated) sensor, a frozen
+stretch, single outlier samples.
+
+Each fault biases every coefficient silently: the algebraic integrals read a flat top as
+the system's motion, and one glitch of fifty noise levels moves a whole window of rows.
+:func:`sensor_faults` finds them in the measured coordinates (never in the inputs: a
+piecewise-constant or saturated input is an input, not a fault); a run warns about each
+one and, with ``faults = "gap"`` in its data table, marks the samples as gaps so that the
+integrals restart around them (:func:`without_faults`).
+
+The rules, each chosen to stay silent on quantised encoders and smooth noise-free
+simulations:
+
+- **clipped**: at least ``CLIP_MIN_FRACTION`` of the samples (and ``CLIP_MIN_SAMPLES``)
+  sit exactly at the signal's maximum (or minimum), ``CLIP_RATIO`` times as many as at the
+  nearest other value.  A quantised peak holds its top level about 2.4 times as long as
+  the level below it (a parabola's time within :math:`q` of its top against the next
+  :math:`q`), a saturated sensor hundreds of times.
+- **frozen**: a run of identical consecutive samples at least ``FROZEN_MIN_SAMPLES``
+  long and ``FROZEN_RATIO`` times the 99th percentile of the signal's run lengths (1 for
+  a noisy signal, tens for a quantised one).
+- **outlier**: a sample whose distance from the median of its five neighbours exceeds
+  ``OUTLIER_LEVELS`` times the robust scale of those distances,
+
+  .. math:: s = \max\bigl(1.4826\,\mathrm{median}\,|d|,\; P_{99}(|d|)/3\bigr),
+     \qquad d_k = y_k - \mathrm{median}(y_{k-2}, \dots, y_{k+2}),
+
+  in runs of at most ``OUTLIER_MAX_RUN`` samples (a glitch, not a motion).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.ndimage import median_filter
+
+from cvxid.errors import CvxidError, CvxidWarning
+
+CLIP_MIN_FRACTION = 0.002
+CLIP_MIN_SAMPLES = 5
+CLIP_RATIO = 10.0
+FROZEN_MIN_SAMPLES = 50
+FROZEN_RATIO = 10.0
+OUTLIER_LEVELS = 20.0
+OUTLIER_MAX_RUN = 3
+
+FAULT_HANDLING = ("warn", "gap", "ignore")
+"""What a loader does with a fault: warn about it (the default), mark its samples as gaps
+(and warn that it did), or neither (a user who knows the record, e.g. a quantised encoder
+at standstill)."""
+
+
+@dataclass(frozen=True)
+class SensorFault:
+    """One fault of one measured signal.
+
+    Attributes
+    ----------
+    signal : str
+        The output's name.
+    kind : str
+        ``"clipped"``, ``"frozen"`` or ``"outlier"``.
+    samples : numpy.ndarray
+        Boolean mask of the faulty samples.
+    detail : str
+        What was seen, for the message.
+    """
+
+    signal: str
+    kind: str
+    samples: np.ndarray
+    detail: str
+
+    def message(self, experiment: str, handling: str = "warn") -> str:
+        """The warning a run gives, with the fix."""
+        seen = {"clipped": "is clipped", "frozen": "freezes", "outlier": "has outliers"}[self.kind]
+        where = f"experiment '{experiment}': output '{self.signal}' {seen}: {self.detail}"
+        if handling == "gap":
+            return f"{where}; its {int(self.samples.sum())} samples are treated as gaps (faults = \"gap\")"
+        cause = {
+            "clipped": "a saturated sensor biases every coefficient",
+            "frozen": "if the sensor froze, the record is wrong there; if the system stood still, ignore this",
+            "outlier": "one glitch moves every row whose window holds it",
+        }[self.kind]
+        return (f"{where} ({cause}); set faults = \"gap\" in the spec's data table (or make those samples NaN "
+                "and load with gaps = true) so that the integrals restart around them")
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """Start and end (exclusive) of each run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(np.int8), 0]))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _clipped(name: str, y: np.ndarray) -> list[SensorFault]:
+    finite = y[np.isfinite(y)]
+    faults = []
+    for side, level in (("maximum", finite.max()), ("minimum", finite.min())):
+        at = y == level
+        count = int(at.sum())
+        if count < max(CLIP_MIN_SAMPLES, CLIP_MIN_FRACTION * finite.size):
+            continue
+        others = finite[finite != level]
+        if others.size == 0:
+            continue
+        nearest = others[np.argmin(np.abs(others - level))]
+        if count < CLIP_RATIO * np.count_nonzero(finite == nearest):
+            continue
+        faults.append(SensorFault(
+            name, "clipped", at,
+            f"{count} samples ({100 * count / finite.size:.1f} %) sit at its {side} {level:.6g} in "
+            f"{len(_runs(at))} stretches"))
+    return faults
+
+
+def _frozen(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
+    same = np.r_[False, y[1:] == y[:-1]]
+    runs = [(a - 1, b) for a, b in _runs(same)]          # a run holds the sample before its first repeat
+    if not runs:
+        return []
+    lengths = np.array([b - a for a, b in runs])
+    typical = np.percentile(np.r_[lengths, np.ones(y.size - lengths.sum(), int)], 99)
+    mask = np.zeros(y.size, bool)
+    longest = None
+    for (a, b), length in zip(runs, lengths):
+        if length >= max(FROZEN_MIN_SAMPLES, FROZEN_RATIO * typical) and not skip[a:b].any():
+            mask[a:b] = True
+            longest = max(longest or (0, 0, 0), (length, a, b))
+    if longest is None:
+        return []
+    length, a, _ = longest
+    return [SensorFault(
+        name, "frozen", mask,
+        f"{len(_runs(mask))} stretch(es) of one repeated value, the longest {length} samples from sample {a} "
+        f"(99 % of its other runs of one value last at most {typical:.0f} samples)")]
+
+
+def _outliers(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
+    size = np.zeros(y.size)
+    for a, b in _runs(np.isfinite(y)):                   # gaps (NaN) split the record
+        size[a:b] = np.abs(y[a:b] - median_filter(y[a:b], size=5, mode="nearest"))
+    scale = max(1.4826 * np.median(size), np.percentile(size, 99) / 3)
+    if scale == 0:
+        return []
+    far = (size > OUTLIER_LEVELS * scale) & ~skip
+    mask = np.zeros(y.size, bool)
+    for a, b in _runs(far):
+        if b - a <= OUTLIER_MAX_RUN:
+            mask[a:b] = True
+    if not mask.any():
+        return []
+    first = int(np.argmax(mask))
+    return [SensorFault(
+        name, "outlier", mask,
+        f"{int(mask.sum())} isolated sample(s) far from their neighbours, the first at sample {first} "
+        f"({size[first] / scale:.0f} times the typical distance)")]
+
+
+def sensor_faults(experiment) -> list[SensorFault]:
+    """The clipped, frozen and outlier samples of each measured output of ``experiment``
+    (gaps, NaN samples, are left out of every rule)."""
+    faults = []
+    for name, y in experiment.outputs.items():
+        if not np.isfinite(y).any():
+            continue
+        clipped = _clipped(name, y)
+        skip = np.zeros(y.size, bool)
+        for fault in clipped:
+            skip |= fault.samples
+        faults += clipped + _frozen(name, y, skip) + _outliers(name, y, skip)
+    return faults
+
+
+def without_faults(experiment, faults: list[SensorFault]):
+    """``experiment`` with the faulty samples made NaN and loaded with gaps, so that the
+    algebraic integrals restart around them."""
+    outputs = dict(experiment.outputs)
+    for fault in faults:
+        y = outputs[fault.signal].copy()
+        y[fault.samples] = np.nan
+        outputs[fault.signal] = y
+    return replace(experiment, outputs=outputs, gaps=True)
+
+
+def checked(experiment, handling: str = "warn"):
+    """``experiment`` after its sensor check: each fault a :class:`~cvxid.errors.CvxidWarning`
+    (``"warn"``), its samples made gaps as well (``"gap"``), or nothing checked (``"ignore"``)."""
+    if handling not in FAULT_HANDLING:
+        raise CvxidError(f"faults must be one of {', '.join(FAULT_HANDLING)}, got {handling!r}")
+    if handling == "ignore":
+        return experiment
+    faults = sensor_faults(experiment)
+    for fault in faults:
+        warnings.warn(fault.message(experiment.name, handling), CvxidWarning, stacklevel=3)
+    return without_faults(experiment, faults) if handling == "gap" and faults else experiment
