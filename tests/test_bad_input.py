@@ -122,3 +122,60 @@ def test_absurd_magnitudes_are_an_error_that_says_rescale(scale):
     with pytest.raises(CvxidError, match=r"signal 'output x' reaches .* in magnitude.*rescale it \(other units\)"):
         Experiment(T, {"x": np.sin(T) * scale}, {"f": np.cos(T)})
     assert Experiment(T, {"x": np.sin(T) * 1e-6}, {"f": np.cos(T)}).output("x").max() > 0  # small units are fine
+
+
+IMPLAUSIBLE = """name = "implausible"
+[data.train]
+file = "train.csv"
+input = {{ f = "{force}" }}
+[model.library]
+{library}
+[fit]
+estimator = "{estimator}"
+"""
+
+
+@pytest.mark.parametrize("case", ["negative inertia", "no term kept"])
+def test_an_implausible_model_is_a_warning(tmp_path, rng, case):
+    """A force of the wrong sign gives a negative mass; an output that the input does not
+    drive (white noise) leaves the lasso no term: each is said in result.json, not reported
+    silently."""
+    import json
+
+    from cvxid.app.cli import main
+    from cvxid.simulate import System, simulate
+
+    t = np.arange(6000) * 1e-3
+    force = lambda s: 3 * np.sin(2.1 * s) + 2 * np.sin(5.3 * s + 1)
+    x, _ = simulate(System((parse_term("x'"), parse_term("x")), np.array([0.5, 6.0]), 1.0, "x"), t, force, 0.3, 0.0)
+    unrelated = rng.standard_normal(t.size)
+    measured = x + 1e-3 * rng.standard_normal(t.size) if case == "negative inertia" else 0.1 * unrelated
+    columns = np.column_stack([t, measured, force(t), -force(t)])
+    np.savetxt(tmp_path / "train.csv", columns, delimiter=",", header="t,x,f,minus_f", comments="")
+    if case == "negative inertia":
+        text = IMPLAUSIBLE.format(force="minus_f", library='terms = ["x", "x\'"]', estimator="lstsq")
+        said = "the identified inertia is -1, not positive"
+    else:
+        text = IMPLAUSIBLE.format(force="f", library="order = 2", estimator="lasso")
+        said = "the selection dropped every candidate term"
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+    assert any(said in w for w in warnings), warnings
+
+
+def test_a_build_larger_than_the_memory_available_is_refused_before_any_work(monkeypatch):
+    """1e5 samples on whole-record integrals of 16 columns: about 0.47 GB (measured 96 bytes
+    per sample and column); with 0.4 GB available it is refused naming both figures and the
+    fix, while windows (150 bytes per sample: 0.32 GB) fit, and allow_large tries anyway."""
+    import cvxid.regression.memory as memory
+
+    monkeypatch.setattr(memory, "available_bytes", lambda: 0.4e9)
+    t = np.arange(100_000) * 1e-3
+    record = Experiment(t, {"x": np.sin(t) + 0.1 * np.sin(7 * t)}, {"f": np.cos(t)})
+    model = ModelSpec(Library.polynomial(3, True, "x"))
+    with pytest.raises(CvxidError, match=r"100,000 samples on whole-record integrals of 16 columns need about "
+                                         r"0.5 GB of memory and 0.4 GB is available: use windows"):
+        RegressionBuilder(model, record, "savgol", window="record")
+    assert RegressionBuilder(model, record, "savgol", window="auto").window is not None
+    assert RegressionBuilder(model, record, "savgol", window="record", allow_large=True).window is None

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.io import savemat
 
-from cvxid import CvxidError, Experiment, load
+from cvxid import CvxidError, CvxidWarning, Experiment, load
 
 T = np.arange(100) * 0.01
 
@@ -109,3 +109,46 @@ def test_gaps_split_into_segments_and_restart_the_integrals():
     assert with_gap.shape[0] == 390  # the 10 missing samples are not interpolated
     windowed = RegressionBuilder(model, e, "savgol", window=0.3).at(None)  # no window straddles the gap
     assert windowed.shape[0] == sum(p.n - 31 + 1 for p in parts)  # 31-sample windows, one per shift
+
+
+def test_logger_jitter_is_resampled_with_a_warning_and_real_non_uniformity_refused(rng):
+    """Steps of 0.00100003 s (as a logger writes them) are jitter: the record is put on the
+    uniform grid of the mean step and the warning says by how much; a step 2 % off is
+    refused with what to do."""
+    t = np.arange(4000) * 1e-3
+    jittered = t + rng.uniform(-3e-8, 3e-8, t.size)
+    with pytest.warns(CvxidWarning, match=r"jitter by up to 0.00\d+ % of the mean step 0.001 s; the record was "
+                                          r"resampled onto the uniform grid \(largest time shift [0-9.e-]+ s"):
+        e = Experiment(jittered, {"x": np.sin(3 * jittered)}, {"f": np.cos(jittered)})
+    assert np.ptp(np.diff(e.time)) < 1e-15
+    assert np.max(np.abs(e.output("x") - np.sin(3 * e.time))) < 1e-9  # the signal moved with its time
+    off = t.copy()
+    off[2000:] += 2e-5  # one step 2 % long
+    with pytest.raises(CvxidError, match=r"2 % off; up to 1 % is taken as logger jitter\): resample"):
+        Experiment(off, {"x": np.sin(t)}, {"f": np.cos(t)})
+
+
+def test_a_csv_with_logger_jitter_runs_end_to_end(tmp_path):
+    """`cvxid run` on a CSV whose time column jitters gives the model of the clean record
+    (within 1e-4) and says it resampled."""
+    import json
+
+    import cvxid
+    from cvxid.app.cli import main
+
+    from .test_sensor import SIMULATED, SPEC
+
+    (tmp_path / "simulated.toml").write_text(SPEC.format(train=SIMULATED))
+    train = cvxid.load_problem(tmp_path / "simulated.toml").experiment("train")
+    jitter = np.random.default_rng(7).uniform(-3e-8, 3e-8, train.n)
+    coefficients = {}
+    for name, time in (("clean", train.time), ("jittered", train.time + jitter)):
+        np.savetxt(tmp_path / "train.csv", np.column_stack([time, train.output("x"), train.input("f")]),
+                   delimiter=",", header="t,x,f", comments="", fmt="%.10g")
+        (tmp_path / "spec.toml").write_text(SPEC.format(train='file = "train.csv"'))
+        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / name)]) == 0
+        result = json.loads((tmp_path / name / "result.json").read_text())
+        coefficients[name] = result["physical"]
+        assert any("jitter" in w for w in result["warnings"]) == (name == "jittered")
+    for key, value in coefficients["clean"].items():
+        assert coefficients["jittered"][key] == pytest.approx(value, rel=1e-4, abs=1e-6), key

@@ -45,6 +45,8 @@ def _problems(args) -> int:
 def _bench(args) -> int:
     if args.heldout:
         return _heldout(args)
+    if args.long:
+        return _long(args)
     if args.accuracy:
         return _accuracy(args)
     from cvxid.tools.bench import run_bench
@@ -71,6 +73,30 @@ def _accuracy(args) -> int:
         with open(args.json, "w") as fh:
             json.dump({"runs": frame.to_dict(orient="records"),
                        "summary": table.reset_index().to_dict(orient="records")}, fh, indent=2)
+    return 0
+
+
+def _long(args) -> int:
+    import json
+
+    from cvxid.app.report import plain
+    from cvxid.tools.long_record import growth
+
+    if args.spec:
+        raise CvxidError("--long writes its own records: give no SPEC")
+    try:
+        sizes = [int(float(v)) for v in args.long.split(",")]
+    except ValueError:
+        raise CvxidError(f"--long takes record lengths in samples, like 1e5,1e6,2e6, got '{args.long}'") from None
+    if any(not 100 <= n <= 10**8 for n in sizes):
+        raise CvxidError(f"--long: each record length must lie in 100 … 1e8 samples, got {args.long}")
+    frame = growth(sizes)
+    print("cvxid bench --long: x'' + 0.5 x' + 6 x = f at 1 kHz (CSV), noise 0.001, order-3 library, documented "
+          "defaults; one fresh process per row (wall seconds include the import and reading the CSV)")
+    print(frame.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(plain({"rows": frame.to_dict(orient="records")}), fh, indent=2)
     return 0
 
 
@@ -162,9 +188,11 @@ def main(argv=None) -> int:
     p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
     p_bench.add_argument("--keep", default=None, help="keep each system's data, spec and result.json here (--heldout)")
     p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")
+    p_bench.add_argument("--long", default=None,
+                         help="record lengths in samples, e.g. 1e5,1e6,2e6,1e7: seconds, peak memory and accuracy")
     args = parser.parse_args(argv)
-    if args.command == "bench" and not args.heldout and not args.spec:
-        parser.error("bench needs a SPEC (or --heldout)")
+    if args.command == "bench" and not (args.heldout or args.long) and not args.spec:
+        parser.error("bench needs a SPEC (or --heldout, or --long)")
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:

@@ -65,13 +65,14 @@ def run(spec) -> RunResult:
             result = _identify(spec)
         _compare(result)
         _warn_confounded_gain(result)
+        _warn_implausible(result)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
     result.seconds = time.perf_counter() - start
     return result
 
 
 def _warn_confounded_gain(out: RunResult) -> None:
-    """An estimated feedback gain whose delay may be 0 is not identified: at
+    r"""An estimated feedback gain whose delay may be 0 is not identified: at
     :math:`\tau = 0` the feedback :math:`b\,x(t-\tau)` is the library's own column
     :math:`x`, and only the difference of their coefficients is."""
     interval = (out.tau or {}).get("interval")
@@ -91,6 +92,30 @@ def _warn_confounded_gain(out: RunResult) -> None:
             f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}) are not identified separately; their "
             f"difference {name} - gain = {physical[name] - physical['gain']:.4g} is. Give the gain ([model.delay] "
             "gain = …), or remove [model.delay] if the loop has no delay", CvxidWarning, stacklevel=2)
+
+
+def _warn_implausible(out: RunResult) -> None:
+    """A model no physical system has, said aloud: a non-positive inertia, or a selection
+    that dropped every candidate term at the top of the lambda grid."""
+    for label, model in out.system.models.items():
+        mass = model.physical.get("m")
+        if model.spec.inertia and mass is not None and not mass > 0:
+            where = "" if len(out.system.models) == 1 else f" of equation '{label}'"
+            warnings.warn(
+                f"the identified inertia{where} is {mass:.4g}, not positive: no physical system has it (nor can it be "
+                f"simulated). Constrain it ([model.constraints] nonnegative = [\"{model.spec.inertia_term.name}\"]), "
+                "keep the windowed integrals (window = \"auto\") on long records, or check the data", CvxidWarning,
+                stacklevel=2)
+    if out.path is None or out.lam is None or out.problem is None:
+        return
+    candidates = out.problem.penalties > 0
+    chosen = np.array([out.system.coefficients.get(n, 0.0) != 0 for n in out.problem.names])
+    if candidates.any() and not (chosen & candidates).any() and out.lam >= out.path.lambdas.max():
+        warnings.warn(
+            f"the selection dropped every candidate term: lambda = {out.lam:.3g} is the top of its grid, so the "
+            "validation error was least with no term at all; the model is likely missing an effect or the data "
+            "do not excite it (run the diagnosis, [diagnose], or give the terms you expect)", CvxidWarning,
+            stacklevel=2)
 
 
 def _best_velocity(spec) -> RunResult:
@@ -130,8 +155,8 @@ def _identify(spec) -> RunResult:
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if fit.orders:
         system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
-    rows = SystemBuilder(system.equations, train, velocity, fit.window)
-    test_rows = SystemBuilder(system.equations, test, velocity, rows.window) if test else None
+    rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
+    test_rows = SystemBuilder(system.equations, test, velocity, rows.window, fit.allow_large) if test else None
     if fit.estimator == "stepwise_oe":
         return _stepwise(spec, rows, test_rows, train, test)
     whole, whole_system = (fit_support(system, rows, solver=fit.solver) if system.exact else None), system

@@ -7,20 +7,28 @@ Everything is validated on construction, so later stages can trust the arrays.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 
 from cvxid.data.sensor import checked
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 
 MIN_SAMPLES = 20
 """Fewest samples an experiment may have (the algebraic operation needs a record)."""
 
 UNIFORM_RTOL = 1e-6
-"""Largest relative deviation of a time step from the mean step."""
+"""Largest relative deviation of a time step from the mean step taken as rounding."""
+
+JITTER_RTOL = 0.01
+"""Largest relative deviation of a time step from the mean step that is logger jitter
+(a step of 0.00100003 s for a mean of 0.001 s): the record is resampled onto the uniform
+grid of the mean step, with a warning that says by how much.  Above it the time is not
+uniform (a missing sample, a changed rate) and the record is refused."""
 
 
 def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> np.ndarray:
@@ -116,12 +124,17 @@ class Experiment:
             )
         dt = (t[-1] - t[0]) / (t.size - 1)
         dev = np.max(np.abs(steps - dt)) / dt
-        if dev > UNIFORM_RTOL:
+        if dev > JITTER_RTOL:
             k = int(np.argmax(np.abs(steps - dt)))
             raise CvxidError(
-                f"experiment '{self.name}': time is not uniformly sampled (step {steps[k]:g} at "
-                f"sample {k} against a mean step of {dt:g}); resample onto a uniform grid first"
+                f"experiment '{self.name}': time is not uniformly sampled (step {steps[k]:.6g} at "
+                f"sample {k} against a mean step of {dt:.6g}, {100 * dev:.3g} % off; up to "
+                f"{100 * JITTER_RTOL:g} % is taken as logger jitter): resample the record onto a uniform grid "
+                "(e.g. numpy.interp), split it where a sample is missing, or, if the samples were taken "
+                "uniformly and only the time stamps jitter, write the time as t0 + k * dt"
             )
+        if dev > UNIFORM_RTOL:
+            t, signals = _resampled(t, signals, dev, self.name)
         object.__setattr__(self, "time", t)
         for group, sigs in signals.items():
             object.__setattr__(self, group, sigs)
@@ -190,6 +203,25 @@ class Experiment:
         if self.velocities:
             parts.append(f"  measured velocities: {', '.join(self.velocities)}")
         return "\n".join(parts)
+
+
+def _resampled(t: np.ndarray, signals: dict, deviation: float, name: str) -> tuple[np.ndarray, dict]:
+    """The signals on the uniform grid of the mean step (cubic splines through the recorded
+    times; a gap's NaN samples stay NaN), and a warning that says by how much."""
+    uniform = np.linspace(t[0], t[-1], t.size)
+    shift = float(np.max(np.abs(uniform - t)))
+
+    def on_grid(v):
+        good = np.isfinite(v)
+        out = np.full(t.size, np.nan)
+        out[good] = CubicSpline(t[good], v[good])(uniform[good]) if good.sum() > 3 else v[good]
+        return out
+
+    warnings.warn(
+        f"experiment '{name}': the time steps jitter by up to {100 * deviation:.3g} % of the mean step "
+        f"{(t[-1] - t[0]) / (t.size - 1):.6g} s; the record was resampled onto the uniform grid (largest time "
+        f"shift {shift:.3g} s, cubic splines through the recorded times)", CvxidWarning, stacklevel=4)
+    return uniform, {group: {k: on_grid(v) for k, v in sigs.items()} for group, sigs in signals.items()}
 
 
 # ---------------------------------------------------------------------- loaders

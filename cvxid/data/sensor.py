@@ -97,7 +97,8 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 def _clipped(name: str, y: np.ndarray) -> list[SensorFault]:
     finite = y[np.isfinite(y)]
     faults = []
-    for side, level in (("maximum", finite.max()), ("minimum", finite.min())):
+    extremes = (("maximum", finite.max()), ("minimum", finite.min()))
+    for side, level in extremes[:1] if finite.max() == finite.min() else extremes:
         at = y == level
         count = int(at.sum())
         if count < max(CLIP_MIN_SAMPLES, CLIP_MIN_FRACTION * finite.size):

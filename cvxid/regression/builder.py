@@ -29,6 +29,7 @@ from cvxid.errors import CvxidError
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import DelayedSignal, Term
 from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, RestartTransform, WindowedTransform
+from cvxid.regression.memory import check_memory
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import estimate_velocity
 from cvxid.regression.windows import Windows, resolve_window
@@ -63,7 +64,8 @@ class RegressionBuilder:
     only in its library (the coordinate, input, inertia, delay and algebraic orders fix the
     transform)."""
 
-    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | str | None = "auto"):
+    def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | str | None = "auto",
+                 allow_large: bool = False):
         self.model = model
         self.velocity = velocity
         exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
@@ -71,6 +73,7 @@ class RegressionBuilder:
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
         self.window = resolve_window(window, model, self.experiments)
+        check_memory(sum(e.n for e in self.experiments), len(model.column_names), self.window is not None, allow_large)
         orders = AlgebraicOrders.for_model(model)
         self._states: list[dict[str, np.ndarray]] = []
         self._splines: list[CubicSpline | None] = []
@@ -192,11 +195,11 @@ class SystemBuilder:
     ``"coordinate:term"``; for one, that equation's regression with bare column names."""
 
     def __init__(self, specs: dict[str, ModelSpec], experiments, velocity: str = "savgol",
-                 window: float | str | None = "auto"):
+                 window: float | str | None = "auto", allow_large: bool = False):
         self.specs = dict(specs)
         self.builders = {}
         for label, spec in specs.items():  # every equation on the first one's windows
-            self.builders[label] = RegressionBuilder(spec, experiments, velocity, window)
+            self.builders[label] = RegressionBuilder(spec, experiments, velocity, window, allow_large)
             window = self.builders[label].window or "record"
 
     @property

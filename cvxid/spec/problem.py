@@ -133,6 +133,7 @@ class FitSettings:
     refine: str | None = None
     window: float | str = "auto"
     loss: str = "squared"
+    allow_large: bool = False  # jobs above MAX_SOLVES, builds above the memory available
 
 
 @dataclass(frozen=True)
@@ -410,11 +411,12 @@ def _fit(table: Table) -> FitSettings:
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
         window=_window(table, where),
         loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
+        allow_large=_bool(table, "allow_large", where, False),
     )
     solves = len(lambdas) * (settings.bootstrap.samples if settings.bootstrap else 1) * max(len(settings.orders), 1)
     if settings.velocity == "auto":
         solves *= 3
-    if solves > MAX_SOLVES and not _bool(table, "allow_large", where, False):
+    if solves > MAX_SOLVES and not settings.allow_large:
         raise CvxidError(
             f"spec: [fit] asks for {solves:,} convex solves (lambdas count x bootstrap samples x orders"
             f"{' x 3 velocity estimators' if settings.velocity == 'auto' else ''}), hours of work; reduce them, or "
