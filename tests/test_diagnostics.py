@@ -64,9 +64,11 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     result = refine(start, train, test)
     assert [s.added for s in result.steps] == [hidden]  # added, then the loop stops
     step = result.steps[0]
-    # measured on windows: the test equation error falls 104x (coulomb), far more for the others
-    assert step.test_mse_before >= 50 * step.test_mse_after
-    assert step.fit_after > 90
+    # measured on windows: the test equation error falls 91x (coulomb), 2.9e5x (cubic
+    # stiffness), 2.2e5x (quadratic damping); the free-run fit after is 98.2, 99.6, 99.3 %
+    falls = {"coulomb": 45, "cubic_stiffness": 1e5, "quadratic_damping": 1e5}
+    assert step.test_mse_before >= falls[hidden] * step.test_mse_after
+    assert step.fit_after > {"coulomb": 97.5, "cubic_stiffness": 99.0, "quadratic_damping": 98.8}[hidden]
     assert hidden in {g for group in dx.groups for g in group}
 
 
