@@ -50,9 +50,11 @@ from scipy.interpolate import CubicSpline
 
 from cvxid.errors import CvxidError
 from cvxid.model.delay import HISTORIES
+from cvxid.model.expression import POSITION, VELOCITY
 from cvxid.model.terms import (
     AbsProduct,
     Constant,
+    Expression,
     Monomial,
     Sign,
     Term,
@@ -239,7 +241,7 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     args = (F, np.ascontiguousarray(mass), coefs, np.ascontiguousarray(gain), delayed, derivative, offs, ws, instant,
             fill, past_values, past_slopes, x0, v0, h, steps)
     if codes is not None:
-        X, V, failed = _kernel(*codes, *args)
+        X, V, failed = _kernel(codes, *args)
     else:
         X, V, failed = _python_kernel(coordinates, terms, *args)
     if failed >= 0:
@@ -296,16 +298,18 @@ def hermite_stages(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
 
 
 # ---------------------------------------------------------------------- term codes
-KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH = 0, 1, 2, 3
+KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH, KIND_EXPRESSION = 0, 1, 2, 3, 4
 
 
 def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
-    """Every term of every equation as (equation, kind, powers of positions ``(T, C)``,
-    powers of velocities, coordinate read, smoothing) for the compiled kernel; None when a
-    term is a user's own (the Python kernel runs it)."""
+    """Every term of every equation for the compiled kernel: (equation, kind, powers of
+    positions ``(T, C)``, powers of velocities, coordinate read, smoothing, first and end
+    index of its program in ``ops``/``args``) and the expressions' programs (``ops``,
+    ``args``, :mod:`cvxid.model.expression`); None when a term is a user's own Python
+    function (the Python kernel runs it)."""
     symbols = {c: j for j, c in enumerate(coordinates)}
     C = len(coordinates)
-    rows = []
+    rows, ops, args = [], [], []
     for e, eq_terms in enumerate(terms):
         for term in eq_terms:
             px, pv = np.zeros(C, np.int64), np.zeros(C, np.int64)
@@ -313,22 +317,32 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
                     len(s) - len(s.rstrip("'")) <= 1 for s in term.factors):
                 for s, p in term.factors.items():
                     (pv if s.endswith("'") else px)[symbols[s.rstrip("'")]] = p
-                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0))
+                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0, 0, 0))
             elif isinstance(term, Constant):
-                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0))
+                rows.append((e, KIND_MONOMIAL, px, pv, 0, 0.0, 0, 0))
             elif isinstance(term, Sign) and term.coordinate in symbols:
                 rows.append((e, KIND_TANH if term.smoothing else KIND_SIGN, px, pv, symbols[term.coordinate],
-                             term.smoothing))
+                             term.smoothing, 0, 0))
             elif isinstance(term, AbsProduct) and term.coordinate in symbols:
-                rows.append((e, KIND_ABS, px, pv, symbols[term.coordinate], 0.0))
+                rows.append((e, KIND_ABS, px, pv, symbols[term.coordinate], 0.0, 0, 0))
+            elif isinstance(term, Expression) and set(term.coordinates) <= set(symbols):
+                program = term.parsed.program
+                reads = (program.ops == POSITION) | (program.ops == VELOCITY)  # its coordinates, renumbered
+                renumbered = np.where(reads, [symbols[term.coordinates[int(a)]] if r else a
+                                              for a, r in zip(program.args, reads)], program.args)
+                rows.append((e, KIND_EXPRESSION, px, pv, 0, 0.0, len(ops), len(ops) + program.ops.size))
+                ops += program.ops.tolist()
+                args += renumbered.tolist()
             else:
                 return None
     if not rows:
         return (np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, C), np.int64), np.zeros((0, C), np.int64),
+                np.zeros(0, np.int64), np.zeros(0), np.zeros(0, np.int64), np.zeros(0, np.int64),
                 np.zeros(0, np.int64), np.zeros(0))
-    eqs, kinds, px, pv, tc, scale = zip(*rows)
+    eqs, kinds, px, pv, tc, scale, starts, stops = zip(*rows)
     return (np.array(eqs, np.int64), np.array(kinds, np.int64), np.array(px), np.array(pv), np.array(tc, np.int64),
-            np.array(scale, float))
+            np.array(scale, float), np.array(starts, np.int64), np.array(stops, np.int64),
+            np.array(ops, np.int64), np.array(args, float))
 
 
 # ---------------------------------------------------------------------- kernels
@@ -355,8 +369,53 @@ def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, 
 
 
 @njit(cache=True)
-def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill,
-           Hy, Hd, X, V, A, steps, h, out):
+def _program(ops, args, first, stop, x, v, stack):
+    """An expression's postfix program (:mod:`cvxid.model.expression`) at the state (x, v)."""
+    top = 0
+    for i in range(first, stop):
+        op = ops[i]
+        if op <= 2:
+            stack[top] = args[i] if op == 0 else (x[int(args[i])] if op == 1 else v[int(args[i])])
+            top += 1
+        elif op <= 7:
+            top -= 1
+            a, b = stack[top - 1], stack[top]
+            if op == 3:
+                stack[top - 1] = a + b
+            elif op == 4:
+                stack[top - 1] = a - b
+            elif op == 5:
+                stack[top - 1] = a * b
+            elif op == 6:
+                stack[top - 1] = a / b
+            else:
+                stack[top - 1] = a ** b
+        else:
+            a = stack[top - 1]
+            if op == 8:
+                a = -a
+            elif op == 9:
+                a = np.sin(a)
+            elif op == 10:
+                a = np.cos(a)
+            elif op == 11:
+                a = np.tanh(a)
+            elif op == 12:
+                a = np.exp(a)
+            elif op == 13:
+                a = abs(a)
+            elif op == 14:
+                a = 1.0 if a > 0 else (-1.0 if a < 0 else 0.0)
+            else:
+                a = np.sqrt(a)
+            stack[top - 1] = a
+    return stack[0]
+
+
+@njit(cache=True)
+def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A,
+           steps, h, out):
+    eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
     C = x.size
     qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps)
     for e in range(C):
@@ -371,6 +430,8 @@ def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gai
                 val *= x[c] ** px[m, c] * v[c] ** pv[m, c]
         elif kind == 2:
             val = v[tc[m]] * abs(v[tc[m]])
+        elif kind == 4:
+            val = _program(ops, args, starts[m], stops[m], x, v, stack)
         else:
             val = np.tanh(v[tc[m]] / scale[m])
         out[eqs[m]] -= coefs[m, b] * val
@@ -392,32 +453,32 @@ def _accel(b, s, x, v, k, ci, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gai
 
 
 @njit(cache=True)
-def _kernel(eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h,
-            steps):
+def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
     """RK4 with a Hermite history of the delayed coordinate, one variant of the batch at a
-    time (compiled)."""
+    time (compiled).  ``terms``: the codes of :func:`_term_codes`."""
     C, B = x0.shape
     X = np.zeros((steps + 1, C, B))
     V = np.zeros((steps + 1, C, B))
     A = np.zeros((steps + 1, C, B))
     a1, a2, a3, a4 = np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
+    stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
     failed = -1
     for b in range(B):
         x, v = x0[:, b].copy(), v0[:, b].copy()
         X[0, :, b], V[0, :, b] = x, v
         for k in range(steps):
-            _accel(b, 2 * k, x, v, k, 0, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws, instant,
-                   fill, Hy, Hd, X, V, A, steps, h, a1)
+            _accel(b, 2 * k, x, v, k, 0, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd,
+                   X, V, A, steps, h, a1)
             A[k, :, b] = a1
             x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-            _accel(b, 2 * k + 1, x2, v2, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, Hy, Hd, X, V, A, steps, h, a2)
+            _accel(b, 2 * k + 1, x2, v2, k, 1, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
+                   Hd, X, V, A, steps, h, a2)
             x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-            _accel(b, 2 * k + 1, x3, v3, k, 1, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, Hy, Hd, X, V, A, steps, h, a3)
+            _accel(b, 2 * k + 1, x3, v3, k, 1, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
+                   Hd, X, V, A, steps, h, a3)
             x4, v4 = x + h * v3, v + h * a3
-            _accel(b, 2 * k + 2, x4, v4, k, 2, eqs, kinds, px, pv, tc, scale, F, mass, coefs, gain, d, q, offs, ws,
-                   instant, fill, Hy, Hd, X, V, A, steps, h, a4)
+            _accel(b, 2 * k + 2, x4, v4, k, 2, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
+                   Hd, X, V, A, steps, h, a4)
             x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
             v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
             X[k + 1, :, b], V[k + 1, :, b] = x, v

@@ -84,7 +84,7 @@ def test_identically_zero_target_is_named():
         ("[model]\n[data.train]\nfile = '/etc/passwd'\n", "unknown data format"),
         ("[model]\n[data.train]\nfile = 'x.csv'\n[fit]\nlambdas = { min = 1, max = 0.1 }\n", "larger than max"),
         ("[model.library]\norder = 'three'\n[data.train]\nfile = 'x.csv'\n", "must be a number"),
-        ('[model]\n[data.train]\nfile = "x.csv"\n[diagnose]\ncandidates = ["os.system"]\n', "cannot read term"),
+        ('[model]\n[data.train]\nfile = "x.csv"\n[diagnose]\ncandidates = ["os.system"]\n', "'os.system' is not allowed"),
     ],
 )
 def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):

@@ -41,7 +41,7 @@ def test_json_round_trip_simulates_identically(model, tmp_path):
         (lambda d: d.update(schema="other/9"), "not a cvxid model file"),
         (lambda d: d.pop("coefficients"), "incomplete or corrupted"),
         (lambda d: d["coefficients"].update({"x^9": 1.0}), "unknown columns"),
-        (lambda d: d["model"].update(library=["x", "bogus term!"]), "not a coordinate"),
+        (lambda d: d["model"].update(library=["x", "bogus term!"]), "cannot read term .bogus term!"),
         (lambda d: d["model"]["delay"].update(history="yesterday"), "history must be"),
     ],
 )

@@ -30,6 +30,14 @@ def _run(args) -> int:
     return 0
 
 
+def _init(args) -> int:
+    from cvxid.app.starting_spec import init
+
+    path = init(args.data, args.out, args.test, args.time, args.output, args.input, args.dt, args.force)
+    print(f"wrote {path}: run it with `cvxid run {path} --out out/`")
+    return 0
+
+
 def _problems(args) -> int:
     from cvxid.spec.shipped import problems_table, shipped_folder
 
@@ -167,6 +175,15 @@ def main(argv=None) -> int:
     p_run.add_argument("spec", help="a TOML problem spec (see docs/spec.md) or a shipped problem's name")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
     sub.add_parser("problems", help="list the shipped problems (run one with `cvxid run NAME`)", parents=[quiet])
+    p_init = sub.add_parser("init", help="write a commented starting spec for your own record", parents=[quiet])
+    p_init.add_argument("data", help="the record: .csv (header row), .mat or .npz")
+    p_init.add_argument("--out", "-o", default="spec.toml", help="the spec to write (default: spec.toml)")
+    p_init.add_argument("--test", default=None, help="a test record (default: the last 20 %% of DATA)")
+    p_init.add_argument("--time", default=None, help="the time column (default: found by name or by its steps)")
+    p_init.add_argument("--output", default=None, help="the measured coordinate's column (default: found)")
+    p_init.add_argument("--input", default=None, help="the input's column (default: found)")
+    p_init.add_argument("--dt", type=float, default=None, help="the sample step, for a file without a time column")
+    p_init.add_argument("--force", action="store_true", help="replace an existing spec file")
     p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet])
     p_bench.add_argument("spec", nargs="?", help="a TOML problem spec (none with --heldout)")
     p_bench.add_argument("--order", type=int, default=None, help="library order (default: the spec's)")
@@ -196,7 +213,7 @@ def main(argv=None) -> int:
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     try:
-        return {"run": _run, "bench": _bench, "problems": _problems}[args.command](args)
+        return {"run": _run, "bench": _bench, "problems": _problems, "init": _init}[args.command](args)
     except CvxidError as exc:
         print(f"cvxid: error: {exc}", file=sys.stderr)
         return 2

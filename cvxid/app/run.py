@@ -47,6 +47,7 @@ from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
+from cvxid.regression.windows import usable_seconds
 from cvxid.simulate import SimulationDiverged
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -132,6 +133,14 @@ def _best_velocity(spec) -> RunResult:
     return best
 
 
+def _test_window(asked, train_window, system, test):
+    """The test record's windows: the training record's, unless they were chosen
+    automatically and the test record is too short to hold one (then its own)."""
+    too_long = train_window is not None and any(
+        train_window.seconds > usable_seconds(spec, [s for s in test.segments()]) for spec in system.equations.values())
+    return "auto" if asked == "auto" and too_long else train_window
+
+
 CV_FOLDS = 5
 """Blocked cross-validation folds that choose lambda when the spec has no test experiment."""
 
@@ -156,7 +165,8 @@ def _identify(spec) -> RunResult:
     if fit.orders:
         system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
     rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
-    test_rows = SystemBuilder(system.equations, test, velocity, rows.window, fit.allow_large) if test else None
+    test_rows = SystemBuilder(system.equations, test, velocity, _test_window(fit.window, rows.window, system, test),
+                              fit.allow_large) if test else None
     if fit.estimator == "stepwise_oe":
         return _stepwise(spec, rows, test_rows, train, test)
     whole, whole_system = (fit_support(system, rows, solver=fit.solver) if system.exact else None), system

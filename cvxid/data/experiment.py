@@ -172,6 +172,17 @@ class Experiment:
             )
         return self.inputs[name]
 
+    def part(self, start: float, end: float) -> "Experiment":
+        """The samples from fraction ``start`` to fraction ``end`` of the record (``0.8, 1``:
+        its last 20 %)."""
+        a, b = int(round(start * self.n)), int(round(end * self.n))
+        if b - a < MIN_SAMPLES:
+            raise CvxidError(f"experiment '{self.name}': the part {start:g} … {end:g} holds {b - a} samples; at least "
+                             f"{MIN_SAMPLES} are needed")
+        return Experiment(self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()},
+                          {k: v[a:b] for k, v in self.inputs.items()}, name=self.name,
+                          velocities={k: v[a:b] for k, v in self.velocities.items()}, gaps=self.gaps)
+
     def segments(self) -> list["Experiment"]:
         """The gap-free runs of the record (itself when it has no NaN samples); runs too
         short to use are dropped."""
@@ -270,19 +281,21 @@ READERS = {
 
 def load(
     path,
-    time: str,
+    time: str | None,
     outputs: Mapping[str, str],
     inputs: Mapping[str, str],
     velocities: Mapping[str, str] | None = None,
     name: str | None = None,
     gaps: bool = False,
     faults: str = "warn",
+    dt: float | None = None,
 ) -> Experiment:
     """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
 
     ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
-    variable names in the file.  The outputs are checked for sensor faults (clipping, a
+    variable names in the file; ``time = None`` with a sample step ``dt`` for a file without
+    a time column.  The outputs are checked for sensor faults (clipping, a
     frozen stretch, outlier samples; :mod:`cvxid.data.sensor`): ``faults = "warn"`` warns
     about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
     """
@@ -293,8 +306,13 @@ def load(
     if not path.is_file():
         raise CvxidError(f"data file not found: {path}")
     reader, what = READERS[suffix]
-    return _experiment(reader(path), what, path, time, outputs, inputs, velocities, name or path.stem, gaps,
-                       faults)
+    columns = reader(path)
+    if time is None:
+        if dt is None:
+            raise CvxidError(f"{path}: give the time column, or the sample step dt when the file has none")
+        first = np.ravel(_pick(columns, next(iter(outputs.values())), what, path))
+        time, columns = "__time", {**columns, "__time": np.arange(first.size) * float(dt)}
+    return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults)
 
 
 def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],

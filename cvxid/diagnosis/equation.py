@@ -320,11 +320,12 @@ class Diagnosis:
 
 
 def default_candidates(spec: ModelSpec) -> list[str]:
-    """The catalogue minus what the model already has (``delay``: for exact-delay models)."""
+    """The catalogue and the spec's own effects minus what the model already has
+    (``delay``: for exact-delay models)."""
     have = set(spec.column_names)
     exact = spec.delay is not None and spec.delay.exact
     return [
-        name for name, eff in CATALOGUE.items()
+        name for name, eff in {**CATALOGUE, **spec.effects}.items()
         if eff.build(spec.coordinate).name not in have and (name != "delay" or exact)
     ]
 
@@ -332,7 +333,7 @@ def default_candidates(spec: ModelSpec) -> list[str]:
 def _candidate_terms(spec: ModelSpec, candidates: Sequence[str]) -> dict[str, Term]:
     out = {}
     for name in candidates:
-        term = resolve_term(name, (spec.coordinate,))
+        term = resolve_term(name, (spec.coordinate,), spec.effects)
         if term.name in spec.column_names:
             continue
         if name == "delay":
@@ -423,11 +424,11 @@ def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     """``spec`` with a catalogue effect (or a term) added, its sign constraint included."""
     if name == "delay":
         raise CvxidError("the delay is not added but estimated again: refit the model (refit() profiles tau)")
-    term = resolve_term(name, (spec.coordinate,))
+    term = resolve_term(name, (spec.coordinate,), spec.effects)
     if term.name in spec.column_names:
         raise CvxidError(f"the model already has {term.name} ({name})")
     nonneg = spec.nonnegative
-    if name in CATALOGUE and effect(name).nonnegative:
+    if name in {**CATALOGUE, **spec.effects} and effect(name, spec.effects).nonnegative:
         nonneg = nonneg + (term.name,)
     return replace(spec, library=spec.library + [term], nonnegative=nonneg)
 
@@ -509,7 +510,8 @@ def refine(
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
         pool = candidates if candidates is not None else default_candidates(model.spec)
-        pool = [c for c in pool if resolve_term(c, (model.spec.coordinate,)).name not in model.spec.column_names]
+        pool = [c for c in pool
+                if resolve_term(c, (model.spec.coordinate,), model.spec.effects).name not in model.spec.column_names]
         if not pool:
             break
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))

@@ -17,7 +17,7 @@ from typing import Mapping
 
 from cvxid.errors import CvxidError
 from cvxid.model.delay import DelayedFeedback
-from cvxid.model.library import Library
+from cvxid.model.library import Effect, Library
 from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
 
 INERTIA, DELAY, LIBRARY, LISTED = "inertia", "delay", "library", "listed"
@@ -67,6 +67,9 @@ class ModelSpec:
     orders : tuple, optional
         User's algebraic orders ``(n, m)``; by default the smallest that remove every
         initial condition.
+    effects : mapping of str to Effect, optional
+        Effects the spec declares (``[diagnose.effects]``): diagnosis candidates beside the
+        catalogue's.
     """
 
     library: Library
@@ -81,6 +84,7 @@ class ModelSpec:
     keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
     others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
     listed: tuple[str, ...] = ()  # library terms the user listed: estimated, never selected away
+    effects: Mapping[str, Effect] = field(default_factory=dict)  # the spec's own effects for the diagnosis
 
     def __post_init__(self):
         known = set(self.column_names)

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cvxid.errors import CvxidError
+from cvxid.model.symbols import latex_symbol
 
 # the stack machine's operations (the compiled kernel reads the same codes)
 CONST, POSITION, VELOCITY = 0, 1, 2
@@ -97,7 +98,7 @@ def parse_expression(text: str, coordinates: tuple[str, ...]) -> Parsed:
     if "''" in raw:
         raise CvxidError(f"term '{raw}': an acceleration (x'') is the inertia term, not a term of g(x, x')")
     source = re.sub(r"([A-Za-z_][A-Za-z_0-9]*)'", rf"\1{_VELOCITY}", raw).replace("^", "**")
-    source = re.sub(r"(?<=[0-9A-Za-z_)])\s+(?=[A-Za-z_(])", " * ", source)  # "50 x'" is 50 * x'
+    source = re.sub(r"(?<=[0-9A-Za-z_)])\s+(?=[A-Za-z_])", " * ", source)  # "50 x'" is 50 * x'
     try:
         tree = ast.parse(source, mode="eval").body
     except SyntaxError:
@@ -106,8 +107,15 @@ def parse_expression(text: str, coordinates: tuple[str, ...]) -> Parsed:
     ops, args, symbols = [], [], set()
     latex = _compile(tree, raw, coordinates, ops, args, symbols)
     program = Program(np.array(ops, np.int64), np.array(args, float))
-    text = ast.unparse(tree).replace("**", "^").replace(_VELOCITY, "'")
+    text = ast.unparse(tree).replace(" ** ", "^").replace(_VELOCITY, "'")
     return Parsed(text, latex, program, frozenset(symbols))
+
+
+def _grouped(node, latex: str) -> str:
+    """``latex`` in parentheses when ``node`` is a sum or a difference."""
+    if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.Sub)):
+        return f"\\left({latex}\\right)"
+    return latex
 
 
 def _compile(node, raw: str, coordinates, ops: list, args: list, symbols: set) -> str:
@@ -123,8 +131,8 @@ def _compile(node, raw: str, coordinates, ops: list, args: list, symbols: set) -
             f"{', '.join(FUNCTIONS)}")
 
     if isinstance(node, ast.Constant):
-        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) or not np.isfinite(node.value):
-            refuse(f"the constant {node.value!r}")
+        if isinstance(node.value, bool) or not isinstance(node.value, (int, float)) or not abs(node.value) < 1e300:
+            refuse(f"the constant {float(node.value) if isinstance(node.value, float) else node.value!r}")
         emit(CONST, node.value)
         return f"{node.value:g}"
     if isinstance(node, ast.Name):
@@ -134,14 +142,12 @@ def _compile(node, raw: str, coordinates, ops: list, args: list, symbols: set) -
             refuse(f"the name '{name}'" + (" (a function needs parentheses)" if name in FUNCTIONS else ""))
         emit(VELOCITY if velocity else POSITION, coordinates.index(name))
         symbols.add(name + ("'" if velocity else ""))
-        from cvxid.model.terms import latex_symbol
-
         return latex_symbol(name + ("'" if velocity else ""))
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
         inner = _compile(node.operand, raw, coordinates, ops, args, symbols)
         if isinstance(node.op, ast.USub):
             emit(NEG)
-            return f"-{inner}"
+            return f"-{_grouped(node.operand, inner)}"
         return inner
     if isinstance(node, ast.BinOp) and type(node.op) in BINARY:
         left = _compile(node.left, raw, coordinates, ops, args, symbols)
@@ -153,7 +159,9 @@ def _compile(node, raw: str, coordinates, ops: list, args: list, symbols: set) -
                 else f"{left}^{{{right}}}"
         if op == DIV:
             return f"\\frac{{{left}}}{{{right}}}"
-        return f"{left} {'+' if op == ADD else '-' if op == SUB else ' '} {right}".replace("   ", " ")
+        if op == MUL:
+            return f"{_grouped(node.left, left)} {_grouped(node.right, right)}"
+        return f"{left} {'+' if op == ADD else '-'} {_grouped(node.right, right) if op == SUB else right}"
     if isinstance(node, ast.Call) and isinstance(node.func, ast.Name) and not node.keywords:
         if node.func.id not in FUNCTIONS:
             refuse(f"the function '{node.func.id}'")

@@ -9,7 +9,7 @@ the diagnosis) can speak of *Coulomb friction* rather than of ``sign(x')``.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Iterable, Iterator
+from typing import Callable, Iterable, Iterator, Mapping
 
 from cvxid.errors import CvxidError
 from cvxid.model.terms import (
@@ -123,21 +123,44 @@ register_effect(
 )
 
 
-def effect(name: str) -> Effect:
-    if name not in CATALOGUE:
+def effect(name: str, declared: Mapping[str, Effect] | None = None) -> Effect:
+    """The effect ``name``: one a spec ``declared`` ([diagnose.effects]) or the catalogue's."""
+    known = {**CATALOGUE, **(declared or {})}
+    if name not in known:
         raise CvxidError(
-            f"unknown effect '{name}'; the catalogue has: {', '.join(sorted(CATALOGUE))}"
+            f"unknown effect '{name}'; the catalogue has: {', '.join(sorted(known))}"
         )
-    return CATALOGUE[name]
+    return known[name]
 
 
-def resolve_term(text: str, coordinates: tuple[str, ...] = ("x",)) -> Term:
-    """A term from a catalogue name (built for the first coordinate) or a term name."""
-    if text in CATALOGUE:
-        return CATALOGUE[text].build(coordinates[0])
+def resolve_term(text: str, coordinates: tuple[str, ...] = ("x",),
+                 declared: Mapping[str, Effect] | None = None) -> Term:
+    """A term from an effect's name (one the spec ``declared``, or the catalogue's; built for
+    the first coordinate) or a term name (``x^3``, ``sin(theta)``)."""
+    known = {**CATALOGUE, **(declared or {})}
+    if text in known:
+        return known[text].build(coordinates[0])
     if text.isidentifier() and text not in coordinates:
         raise CvxidError(
-            f"unknown term or effect '{text}'; effects: {', '.join(sorted(CATALOGUE))}; "
-            f"terms are written like x, x^3, x^2 x', sign(x')"
+            f"unknown term or effect '{text}'; effects: {', '.join(sorted(known))}; "
+            f"terms are written like x, x^3, x^2 x', sign(x'), sin(x)"
         )
     return parse_term(text, coordinates)
+
+
+def declared_effect(name: str, term: str, coordinates: tuple[str, ...], meaning: str | None = None,
+                    nonnegative: bool = False) -> Effect:
+    """An effect a spec declares for its diagnosis: ``name`` is the ``term`` (an expression
+    of the coordinates, checked now), with its ``meaning``."""
+    if not name.isidentifier():
+        raise CvxidError(f"effect name '{name}' must be an identifier (letters, digits, _)")
+    if name in CATALOGUE:
+        raise CvxidError(f"effect '{name}' is in the catalogue already; give yours another name")
+    built = parse_term(term, coordinates)
+    meaning = meaning or f"{name}, {built.name}"
+    return Effect(name, meaning, lambda c: _with_meaning(parse_term(term, coordinates), meaning), nonnegative)
+
+
+def _with_meaning(term: Term, meaning: str) -> Term:
+    term.meaning = meaning
+    return term

@@ -18,12 +18,10 @@ from typing import Callable, Mapping
 import numpy as np
 
 from cvxid.errors import CvxidError
+from cvxid.model.expression import Parsed, parse_expression
+from cvxid.model.symbols import latex_symbol, velocity_symbol
 
 States = Mapping[str, np.ndarray]
-
-
-def velocity_symbol(coordinate: str) -> str:
-    return coordinate + "'"
 
 
 class Term:
@@ -62,19 +60,6 @@ class Term:
 
     def __hash__(self) -> int:
         return hash(self.name)
-
-
-GREEK = {"alpha", "beta", "gamma", "delta", "epsilon", "zeta", "eta", "theta", "iota", "kappa", "lambda", "mu",
-         "nu", "xi", "pi", "rho", "sigma", "tau", "upsilon", "phi", "chi", "psi", "omega", "Gamma", "Delta", "Theta",
-         "Lambda", "Xi", "Pi", "Sigma", "Phi", "Psi", "Omega"}
-
-
-def latex_symbol(symbol: str) -> str:
-    """``theta'`` as ``\\dot{\\theta}``: Greek names become letters, one or two primes dots."""
-    base = symbol.rstrip("'")
-    dots = len(symbol) - len(base)
-    base = "\\" + base if base in GREEK else base
-    return {0: base, 1: rf"\dot{{{base}}}", 2: rf"\ddot{{{base}}}"}.get(dots, f"{base}^{{({dots})}}")
 
 
 class Monomial(Term):
@@ -293,6 +278,32 @@ class FunctionTerm(Term):
         return np.asarray(self.function(states), dtype=float)
 
 
+class Expression(Term):
+    """A user's term written as an expression of the coordinates and their velocities
+    (``sin(theta)``; :mod:`cvxid.model.expression`): its regression column, compiled
+    simulation, printed and LaTeX forms all come from one checked program."""
+
+    def __init__(self, parsed: Parsed, coordinates: tuple[str, ...], meaning: str | None = None):
+        self.parsed = parsed
+        self.coordinates = tuple(coordinates)
+        self.name = parsed.text
+        self.meaning = meaning or f"the user term {parsed.text}"
+
+    @property
+    def symbols(self) -> frozenset[str]:
+        return self.parsed.symbols
+
+    def evaluate(self, states: States) -> np.ndarray:
+        shape = np.shape(states[next(iter(states))])
+        positions = [states.get(c) for c in self.coordinates]
+        velocities = [states.get(velocity_symbol(c)) for c in self.coordinates]
+        return np.broadcast_to(self.parsed.program.evaluate(positions, velocities), shape)
+
+    @property
+    def latex(self) -> str:
+        return self.parsed.latex
+
+
 # ---------------------------------------------------------------------- parsing
 _FACTOR = re.compile(r"^([A-Za-z_][A-Za-z_0-9]*)('?)(?:\^(\d+))?$")
 _SIGN = re.compile(r"^sign\(\s*([A-Za-z_][A-Za-z_0-9]*)'\s*\)$")
@@ -301,7 +312,9 @@ _DERIV = re.compile(r"^([A-Za-z_][A-Za-z_0-9]*)(''+)$|^([A-Za-z_][A-Za-z_0-9]*)\
 
 
 def parse_term(text: str, coordinates: tuple[str, ...] = ("x",)) -> Term:
-    """A term from its printed name (``"x^2 x'"``, ``"sign(x')"``, ``"x'|x'|"``, ``"1"``).
+    """A term from its printed name (``"x^2 x'"``, ``"sign(x')"``, ``"x'|x'|"``, ``"1"``), or
+    any other expression of the coordinates and their velocities (``"sin(theta)"``,
+    :mod:`cvxid.model.expression`).
 
     Factors may be separated by spaces or ``*``, in any order.
     """
@@ -329,11 +342,8 @@ def parse_term(text: str, coordinates: tuple[str, ...] = ("x",)) -> Term:
     factors: dict[str, int] = {}
     for token in re.split(r"[ *]+", s):
         m = _FACTOR.match(token)
-        if not m:
-            raise CvxidError(
-                f"cannot read term '{raw}': '{token}' is not a factor like x, x^2, x' or x'^3 "
-                "(other forms: sign(x'), x'|x'|, 1, or a catalogue name such as 'coulomb')"
-            )
+        if not m or m.group(1) not in coordinates:  # not a product of powers: an expression such as sin(theta)
+            return Expression(parse_expression(raw, coordinates), coordinates)
         symbol = check(m.group(1)) + m.group(2)
         factors[symbol] = factors.get(symbol, 0) + int(m.group(3) or 1)
     return Monomial(factors)

@@ -76,12 +76,17 @@ def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
     return float(2 * np.pi * f[np.searchsorted(cumulative, share * cumulative[-1])])
 
 
+def usable_seconds(model, experiments) -> float:
+    """The shortest record's seconds after the measured history an exact delay reads."""
+    start = model.delay.tau_max if (model.delay is not None and model.delay.exact) else 0.0
+    return min(e.duration for e in experiments) - start
+
+
 def resolve_window(window, model, experiments) -> Windows | None:
     """The windows (``None``: the whole record) for ``window`` = ``"auto"`` (chosen from
     the first experiment's output), ``"record"``, a number of seconds (sliding windows),
     ``{"restart": seconds}`` / ``{"sliding": seconds}`` or :class:`Windows`."""
-    start = model.delay.tau_max if (model.delay is not None and model.delay.exact) else 0.0
-    usable = min(e.duration for e in experiments) - start
+    usable = usable_seconds(model, experiments)
     dt = experiments[0].dt
     if window is None or window == "record":
         return None

@@ -7,7 +7,7 @@ strings are names; nothing in a spec is ever executed.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -22,7 +22,7 @@ from cvxid.identify.path import SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import Library, resolve_term
+from cvxid.model.library import Effect, Library, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.regression.velocity import ESTIMATORS
@@ -100,6 +100,10 @@ def _strings(table: Table, key: str, where: str) -> list[str]:
     if not isinstance(value, list) or not all(isinstance(v, str) for v in value):
         raise CvxidError(f"spec: [{where}] {key} must be a list of strings, got {value!r}")
     return list(value)
+
+
+def _is_number(value) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and bool(np.isfinite(float(value)))
 
 
 def _bool(table: Table, key: str, where: str, default: bool) -> bool:
@@ -180,7 +184,12 @@ class ProblemSpec:
             raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
         table, where = self.data[which], f"data.{which}"
         if "simulate" in table:
-            return _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
+            experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
+        else:
+            experiment = self._loaded(which, table, where)
+        return experiment.part(*table["fraction"]) if "fraction" in table else experiment
+
+    def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
         velocity = table.get("velocity")
         if velocity is None and self.fit.velocity not in ESTIMATORS + ("measured", "auto"):
@@ -188,7 +197,8 @@ class ProblemSpec:
         first = self.coordinates[0]
         return load(
             self.folder / _string(table, "file", where),
-            time=_string(table, "time", where, "t"),
+            time=None if "dt" in table else _string(table, "time", where, "t"),
+            dt=table.get("dt"),
             outputs=_names(table.get("output", {c: c for c in self.coordinates}), first, where, "output"),
             inputs=_names(table.get("input", {i: i for i in inputs}), inputs[0], where, "input"),
             velocities=_names(velocity, first, where, "velocity") if velocity else None,
@@ -210,7 +220,7 @@ class ProblemSpec:
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
-DATA_KEYS = {"file", "time", "output", "input", "velocity", "simulate", "gaps", "faults"}
+DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
@@ -236,6 +246,7 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
+    model = replace(model, effects=declared_effects(raw, model))
     diag = _diagnose(raw, model) if "diagnose" in raw else None
     return ProblemSpec(name, folder, SystemSpec({model.coordinate: model}, ties), fit, data, truth,
                        str(raw.get("description", "")), polynomial, diag)
@@ -272,6 +283,17 @@ def data_sections(raw: Table) -> dict[str, dict]:
     for which, table in data.items():
         if ("file" in table) == ("simulate" in table):
             raise CvxidError(f"spec: [data.{which}] needs exactly one of 'file' or a [data.{which}.simulate] table")
+        where = f"data.{which}"
+        if "dt" in table:
+            if "time" in table:
+                raise CvxidError(f"spec: [{where}] gives both time and dt: the time column, or dt for a file without one")
+            _number(table, "dt", where, positive=True, within=(None, 1e6), fix="the seconds between samples")
+        if "fraction" in table:
+            part = table["fraction"]
+            if (not isinstance(part, list) or len(part) != 2 or not all(_is_number(v) for v in part)
+                    or not 0 <= part[0] < part[1] <= 1):
+                raise CvxidError(f"spec: [{where}] fraction must be [start, end] with 0 <= start < end <= 1 (the part "
+                                 f"of the record used, e.g. [0, 0.8] to train and [0.8, 1] to test), got {part!r}")
         if "faults" in table:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
@@ -287,13 +309,35 @@ class DiagnoseSettings:
     max_steps: int = 5
 
 
+def declared_effects(raw: Table, model: ModelSpec) -> dict[str, Effect]:
+    """``[diagnose.effects]``: the spec's own effects, ``name = "term"`` or ``name = { term =
+    "…", meaning = "…", nonnegative = false }``, each a diagnosis candidate beside the
+    catalogue's."""
+    d = raw.get("diagnose")
+    if not isinstance(d, Mapping) or "effects" not in d:
+        return {}
+    table = d["effects"]
+    if not isinstance(table, Mapping):
+        raise CvxidError('spec: [diagnose.effects] is a table of name = "term" (e.g. unbalance = "cos(theta)")')
+    effects = {}
+    for name, value in table.items():
+        where = f"diagnose.effects.{name}"
+        if isinstance(value, str):
+            value = {"term": value}
+        value = _table({name: value}, name, "diagnose.effects", {"term", "meaning", "nonnegative"})
+        effects[name] = declared_effect(name, _string(value, "term", where), (model.coordinate, *model.others),
+                                        value.get("meaning") and _string(value, "meaning", where),
+                                        _bool(value, "nonnegative", where, False))
+    return effects
+
+
 def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
-    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps"})
+    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects"})
     candidates = None
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
         for c in candidates:
-            resolve_term(c, (model.coordinate,))  # unknown names fail here, with the catalogue
+            resolve_term(c, (model.coordinate,), model.effects)  # unknown names fail here, with the catalogue
     return DiagnoseSettings(
         candidates=candidates,
         refine=_bool(d, "refine", "diagnose", False),

@@ -1,0 +1,200 @@
+"""``cvxid init DATA -o SPEC``: a commented starting spec for a user's own record.
+
+It reads the file (``.csv``, ``.mat``, ``.npz``), finds the time, output and input columns
+(by their names, else by their shape: the time is the increasing column with even steps,
+the output the smoother of the two others, as a mechanical system filters its input) or
+takes them from the options, and writes a spec that runs as written: a linear model
+``m x'' + c x' + k x = u + b x(t - tau)`` with an exact delay of unknown gain, the
+diagnosis on, and comments saying what each key does and what to try next.  Without a
+test record it splits the one record: the first 80 % to train, the last 20 % to test.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from cvxid.data.experiment import READERS
+from cvxid.errors import CvxidError
+from cvxid.metrics import noise_level
+
+TIME_NAMES = ("t", "time", "times", "timestamp", "seconds", "sec", "s")
+INPUT_NAMES = ("u", "f", "force", "input", "voltage", "volt", "torque", "command", "cmd", "current", "drive")
+OUTPUT_NAMES = ("x", "y", "theta", "th", "q", "position", "pos", "angle", "output", "displacement", "out")
+TRAIN_FRACTION = 0.8
+"""Share of a single record used to train when no test record is given."""
+
+
+@dataclass(frozen=True)
+class Columns:
+    """The columns chosen and why."""
+
+    time: str | None
+    output: str
+    input: str
+    dt: float
+    samples: int
+    why: str
+
+
+def _numeric(columns: dict) -> dict[str, np.ndarray]:
+    out = {}
+    for name, values in columns.items():
+        try:
+            array = np.asarray(values, float).ravel()
+        except (TypeError, ValueError):
+            continue
+        if array.size > 1 and np.isfinite(array).mean() > 0.5:
+            out[name] = array
+    return out
+
+
+def _named(names, wanted) -> str | None:
+    lower = {n.strip().lower(): n for n in names}
+    return next((lower[w] for w in wanted if w in lower), None)
+
+
+def detect_columns(columns: dict, time: str | None = None, output: str | None = None, input: str | None = None,
+                   dt: float | None = None) -> Columns:
+    """The time, output and input columns (see the module docstring)."""
+    numeric = _numeric(columns)
+    for given, what in ((time, "time"), (output, "output"), (input, "input")):
+        if given is not None and given not in numeric:
+            raise CvxidError(f"--{what} '{given}' is not a numeric column of the file; columns: "
+                             f"{', '.join(sorted(numeric))}")
+    reasons = []
+    if time is None and dt is None:
+        time = _named(numeric, TIME_NAMES)
+        if time is None:
+            steady = [n for n, v in numeric.items() if np.all(np.diff(v) > 0)
+                      and np.ptp(np.diff(v)) <= 0.01 * np.mean(np.diff(v))]
+            time = steady[0] if len(steady) == 1 else None
+        if time is None:
+            raise CvxidError(f"no time column found among {', '.join(sorted(numeric))}: name it with --time, or "
+                             "give the sample step with --dt when the file has none")
+        reasons.append(f"time '{time}'")
+    others = [n for n in numeric if n != time]
+    output = output or _named([n for n in others if n != input], OUTPUT_NAMES)
+    input = input or _named([n for n in others if n != output], INPUT_NAMES)
+    rest = [n for n in others if n not in (output, input)]
+    if output is None or input is None:
+        pool = [n for n in ([output] if output else []) + ([input] if input else []) + rest]
+        if len(rest) < (output is None) + (input is None) or len(pool) < 2:
+            raise CvxidError(f"cannot tell the output and input apart among {', '.join(sorted(others))}: "
+                             "name them with --output and --input")
+        if output is None and input is None:
+            if len(rest) != 2:
+                raise CvxidError(f"{len(rest)} candidate columns ({', '.join(rest)}): name the output and the input "
+                                 "with --output and --input")
+            rough = {n: noise_level(numeric[n]) / (np.std(numeric[n]) or 1.0) for n in rest}
+            output, input = sorted(rest, key=lambda n: rough[n])
+            reasons.append(f"output '{output}' (the smoother signal) and input '{input}' (the rougher one): swap "
+                           "them if that is wrong")
+        else:
+            (missing,) = rest[:1]
+            output, input = (missing, input) if output is None else (output, missing)
+    else:
+        reasons.append(f"output '{output}' and input '{input}' by their names")
+    samples = numeric[output].size
+    if dt is None:
+        t = numeric[time]
+        dt = float((t[-1] - t[0]) / (t.size - 1))
+    return Columns(time, output, input, float(dt), samples, "; ".join(reasons))
+
+
+def _relative(path: Path, folder: Path) -> str:
+    """``path`` as the spec in ``folder`` names it."""
+    return Path(os.path.relpath(path.resolve(), folder.resolve())).as_posix()
+
+
+def _identifier(name: str, fallback: str) -> str:
+    return name if name.isidentifier() else fallback
+
+
+def _data_table(which: str, file: str, columns: Columns, fraction: tuple[float, float] | None) -> str:
+    lines = [f"[data.{which}]", f'file = "{file}"']
+    lines.append(f'time = "{columns.time}"' if columns.time else f"dt = {columns.dt:g}                       "
+                 "# the file has no time column: samples are this many seconds apart")
+    lines.append(f'output = "{columns.output}"')
+    lines.append(f'input = "{columns.input}"')
+    if fraction:
+        lines.append(f"fraction = [{fraction[0]:g}, {fraction[1]:g}]           # the part of the record used here")
+    lines.append('faults = "warn"                  # clipped, frozen or outlier samples: "warn", "gap" or "ignore"')
+    return "\n".join(lines)
+
+
+def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: Path) -> str:
+    """The text of a starting spec (see the module docstring)."""
+    coordinate = _identifier(columns.output, "x")
+    force = _identifier(columns.input, "u")
+    if force == coordinate:
+        force = "u" if coordinate != "u" else "f"
+    duration = (columns.samples - 1) * columns.dt
+    train_part = None if test else (0.0, TRAIN_FRACTION)
+    usable = duration * (TRAIN_FRACTION if test is None else 1.0)
+    tau_max = float(f"{min(0.5, usable / 10):.3g}")
+    parts = [
+        f"# A starting spec written by `cvxid init {data.name}`: {columns.samples:,} samples, dt = {columns.dt:g} s "
+        f"({duration:g} s).",
+        f"# Columns: {columns.why}.",
+        "# Run it with `cvxid run THIS_FILE --out out/`; docs/spec.md explains every key.",
+        f'name = "{data.stem}"',
+        f'description = "{coordinate}\'\' + c {coordinate}\' + k {coordinate} = {force} + b {coordinate}(t - tau), '
+        'a linear start; the diagnosis looks for what is missing"',
+        "",
+        _data_table("train", _relative(data, spec_folder), columns, train_part).replace(
+            f'output = "{columns.output}"', f'output = {{ {coordinate} = "{columns.output}" }}').replace(
+            f'input = "{columns.input}"', f'input = {{ {force} = "{columns.input}" }}'),
+        "",
+        _data_table("test", _relative(test or data, spec_folder), columns, None if test else (TRAIN_FRACTION, 1.0)).replace(
+            f'output = "{columns.output}"', f'output = {{ {coordinate} = "{columns.output}" }}').replace(
+            f'input = "{columns.input}"', f'input = {{ {force} = "{columns.input}" }}'),
+        "",
+        "[model]",
+        f'coordinate = "{coordinate}"',
+        f'input = "{force}"',
+        "",
+        "[model.library]",
+        f'terms = ["{coordinate}", "{coordinate}\'"]           # listed terms are estimated, never dropped; '
+        'add your own, e.g. "sin(theta)"',
+        "",
+        "[model.delay]                        # a delayed feedback b x(t - tau); remove this table if there is none",
+        f'signal = "{coordinate}"',
+        'method = "exact"',
+        f"tau_max = {tau_max:g}                       # the longest delay searched (s)",
+        "",
+        "[model.constraints]",
+        f'nonnegative = ["{coordinate}\'\'"]               # a positive inertia',
+        "",
+        "[fit]",
+        'estimator = "lstsq"                  # every listed term estimated; "lasso" selects from a library',
+        '# refine = "output_error"            # then polish by simulation error (slower; intervals for tau)',
+        "",
+        "[diagnose]                           # rank the missing physical effects on the test data",
+        "refine = true                        # add the best one and refit while the error falls",
+        "",
+    ]
+    return "\n".join(parts)
+
+
+def init(data, out, test=None, time=None, output=None, input=None, dt=None, overwrite: bool = False) -> Path:
+    """Write the starting spec for ``data`` to ``out`` (refusing to replace a file unless
+    ``overwrite``); returns its path."""
+    data, out = Path(data), Path(out)
+    test = Path(test) if test else None
+    for path in (data, test):
+        if path is None:
+            continue
+        if path.suffix.lower() not in READERS:
+            raise CvxidError(f"{path}: unknown data format '{path.suffix}'; use a .csv, .mat or .npz file")
+        if not path.is_file():
+            raise CvxidError(f"data file not found: {path}")
+    if out.exists() and not overwrite:
+        raise CvxidError(f"{out} exists; choose another -o or pass --force to replace it")
+    columns = detect_columns(READERS[data.suffix.lower()][0](data), time, output, input, dt)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(starting_spec(data, columns, test, out.parent))
+    return out

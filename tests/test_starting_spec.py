@@ -1,0 +1,82 @@
+"""`cvxid init DATA`: a commented starting spec that runs as written (docs/running.md)."""
+
+import json
+
+import numpy as np
+import pytest
+
+from cvxid import CvxidError
+from cvxid.app.cli import main
+from cvxid.app.starting_spec import detect_columns
+from cvxid.spec.load import load_problem
+
+from .test_sensor import SIMULATED, SPEC
+
+
+def simulated_record():
+    """hidden_friction's kind of record: x'' + 0.4 x' + 6 x + 0.8 sign(x') = f + 1.5 x(t - 0.15)."""
+    import tempfile
+    from pathlib import Path
+
+    with tempfile.TemporaryDirectory() as tmp:
+        spec = Path(tmp) / "s.toml"
+        spec.write_text(SPEC.format(train=SIMULATED).replace('coefficients = { "x\'" = 0.4, "x" = 6.0 }',
+                                                             'coefficients = { "x\'" = 0.4, "x" = 6.0, '
+                                                             '"sign(x\')" = 0.8 }'))
+        return load_problem(spec).experiment("train")
+
+
+def test_init_writes_a_spec_that_runs_as_written_and_finds_the_friction(tmp_path, capsys):
+    record = simulated_record()
+    np.savetxt(tmp_path / "rig.csv", np.column_stack([record.time, record.output("x"), record.input("f")]),
+               delimiter=",", header="time,position,force", comments="")
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "specs" / "rig.toml")]) == 0
+    assert "wrote" in capsys.readouterr().out
+    text = (tmp_path / "specs" / "rig.toml").read_text()
+    assert 'file = "../rig.csv"' in text and 'output = { position = "position" }' in text
+    assert "fraction = [0, 0.8]" in text and "fraction = [0.8, 1]" in text and "[diagnose]" in text
+    assert main(["run", str(tmp_path / "specs" / "rig.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    assert result["refinement"][0]["added"] == "coulomb"  # the missing friction, found from the start spec
+    assert result["test_fit_percent"] > 95
+    # asked twice, it keeps the user's file
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "specs" / "rig.toml")]) == 2
+    assert "exists; choose another -o or pass --force" in capsys.readouterr().err
+
+
+def test_columns_found_by_their_shape_when_their_names_say_nothing(rng):
+    t = np.arange(3000) * 0.01
+    smooth = np.sin(0.7 * t) + 0.001 * rng.standard_normal(t.size)
+    rough = np.sign(np.sin(3.1 * t)) + 0.3 * rng.standard_normal(t.size)
+    columns = detect_columns({"c": rough, "a": t, "b": smooth})
+    assert (columns.time, columns.output, columns.input) == ("a", "b", "c")
+    assert "the smoother signal" in columns.why and columns.dt == pytest.approx(0.01)
+
+
+def test_a_file_without_time_takes_dt_and_a_clear_error_otherwise(tmp_path, capsys):
+    record = simulated_record()
+    np.savez(tmp_path / "disk.npz", th=record.output("x"), u=record.input("f"))
+    assert main(["init", str(tmp_path / "disk.npz"), "-o", str(tmp_path / "a.toml")]) == 2
+    assert "no time column found among th, u: name it with --time, or give the sample step with --dt" in \
+        capsys.readouterr().err
+    assert main(["init", str(tmp_path / "disk.npz"), "-o", str(tmp_path / "a.toml"), "--dt", "0.001"]) == 0
+    spec = load_problem(tmp_path / "a.toml")
+    train = spec.experiment("train")
+    assert train.dt == pytest.approx(0.001) and train.n == round(0.8 * record.n)
+    assert spec.experiment("test").time[0] == pytest.approx(train.time[-1] + 0.001)
+
+
+@pytest.mark.parametrize("keys, message", [
+    ('time = "t"\ndt = 0.01', "gives both time and dt"),
+    ("fraction = [0.8, 0.2]", r"fraction must be \[start, end\] with 0 <= start < end <= 1"),
+    ("dt = -1", r"\[data.train\] dt must be positive, got -1"),
+])
+def test_bad_data_keys_are_named(tmp_path, capsys, keys, message):
+    from .conftest import cli_error
+
+    (tmp_path / "d.csv").write_text("t,x,f\n" + "\n".join(f"{i * 0.01},{np.sin(i / 9)},{np.cos(i / 5)}"
+                                                           for i in range(200)))
+    text = f'[data.train]\nfile = "d.csv"\n{keys}\n[model.library]\nterms = ["x"]\n'
+    import re
+
+    assert re.search(message, cli_error(tmp_path, capsys, text))
