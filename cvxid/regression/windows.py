@@ -113,7 +113,7 @@ def resolve_window(window, model, experiments) -> Windows | None:
         )
     if isinstance(window.seconds, bool) or not isinstance(window.seconds, (int, float)) or not window.seconds > 0:
         raise CvxidError(f"[fit] window must be a positive number of seconds, got {window.seconds!r}")
-    if not window.seconds >= MIN_SAMPLES * dt:
+    if not window.seconds >= MIN_SAMPLES * dt * (1 - 1e-9):  # (dt read off another record may differ in its last bit)
         raise CvxidError(f"[fit] window = {window.seconds:g} s holds fewer than {MIN_SAMPLES} samples "
                          f"(dt = {dt:g} s); lengthen it")
     if window.seconds > usable:
