@@ -136,16 +136,16 @@ def test_a_csv_with_logger_jitter_runs_end_to_end(tmp_path):
     import cvxid
     from cvxid.app.cli import main
 
-    from .test_sensor import SIMULATED, SPEC
+    from .test_sensor import SIMULATED, spec_text
 
-    (tmp_path / "simulated.toml").write_text(SPEC.format(train=SIMULATED))
+    (tmp_path / "simulated.toml").write_text(spec_text(SIMULATED))
     train = cvxid.load_problem(tmp_path / "simulated.toml").experiment("train")
     jitter = np.random.default_rng(7).uniform(-3e-8, 3e-8, train.n)
     coefficients = {}
     for name, time in (("clean", train.time), ("jittered", train.time + jitter)):
         np.savetxt(tmp_path / "train.csv", np.column_stack([time, train.output("x"), train.input("f")]),
                    delimiter=",", header="t,x,f", comments="", fmt="%.10g")
-        (tmp_path / "spec.toml").write_text(SPEC.format(train='file = "train.csv"'))
+        (tmp_path / "spec.toml").write_text(spec_text('file = "train.csv"'))
         assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / name)]) == 0
         result = json.loads((tmp_path / name / "result.json").read_text())
         coefficients[name] = result["physical"]

@@ -14,7 +14,7 @@ from cvxid import CvxidWarning, Experiment
 from cvxid.app.cli import main
 from cvxid.data.sensor import sensor_faults
 
-from .conftest import SHARED_DATA
+from .conftest import SHARED_DATA, TEST_SIMULATED, TRAIN_SIMULATED
 
 T = np.arange(8000) * 1e-3
 
@@ -107,13 +107,7 @@ coefficients = {{ "x'" = 0.4, "x" = 6.0 }}
 delay = {{ signal = "x", gain = 1.5, tau = 0.15 }}
 [data.train]
 {train}
-[data.test.simulate]
-duration = 8.0
-dt = 1e-3
-x0 = -0.2
-seed = 2
-noise = {{ output = 0.001, input = 0.0 }}
-input = [ {{ kind = "sine", amplitude = 2.5, omega = 2.9 }}, {{ kind = "sine", amplitude = 2.5, omega = 6.1, phase = 1.0 }} ]
+{test}
 [model.library]
 terms = ["x", "x'"]
 [model.delay]
@@ -124,28 +118,26 @@ tau_max = 0.4
 [fit]
 estimator = "lstsq"
 """
-SIMULATED = """[data.train.simulate]
-duration = 8.0
-dt = 1e-3
-x0 = 0.3
-seed = 1
-noise = { output = 0.001, input = 0.0 }
-input = [ { kind = "sine", amplitude = 3.0, omega = 1.9 }, { kind = "sine", amplitude = 2.0, omega = 4.7, phase = 1.0 },
-          { kind = "sine", amplitude = 1.5, omega = 8.3, phase = 2.0 } ]"""
+SIMULATED = TRAIN_SIMULATED
+
+
+def spec_text(train: str) -> str:
+    """The linear delayed oscillator's spec with this [data.train] body."""
+    return SPEC.format(train=train, test=TEST_SIMULATED)
 
 
 @pytest.mark.parametrize("kind", ["clipped", "frozen", "outlier"])
 def test_a_run_on_a_faulty_record_warns_and_gaps_mend_it(tmp_path, kind):
     """The fault spoils the model silently no more: result.json carries the warning, and
     faults = "gap" brings the test fit back (the clean record: 99.8 %)."""
-    (tmp_path / "simulated.toml").write_text(SPEC.format(train=SIMULATED))
+    (tmp_path / "simulated.toml").write_text(spec_text(SIMULATED))
     train = cvxid.load_problem(tmp_path / "simulated.toml").experiment("train")
     x, _ = faulty(kind, train.output("x"))
     np.savetxt(tmp_path / "train.csv", np.column_stack([train.time, x, train.input("f")]), delimiter=",",
                header="t,x,f", comments="")
     fits = {}
     for faults in ("warn", "gap"):
-        (tmp_path / "spec.toml").write_text(SPEC.format(train=f'file = "train.csv"\nfaults = "{faults}"'))
+        (tmp_path / "spec.toml").write_text(spec_text(f'file = "train.csv"\nfaults = "{faults}"'))
         out = tmp_path / faults
         assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(out)]) == 0
         result = json.loads((out / "result.json").read_text())

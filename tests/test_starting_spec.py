@@ -10,7 +10,7 @@ from cvxid.app.cli import main
 from cvxid.app.starting_spec import detect_columns
 from cvxid.spec.load import load_problem
 
-from .test_sensor import SIMULATED, SPEC
+from .test_sensor import SIMULATED, spec_text
 
 
 def simulated_record():
@@ -20,7 +20,7 @@ def simulated_record():
 
     with tempfile.TemporaryDirectory() as tmp:
         spec = Path(tmp) / "s.toml"
-        spec.write_text(SPEC.format(train=SIMULATED).replace('coefficients = { "x\'" = 0.4, "x" = 6.0 }',
+        spec.write_text(spec_text(SIMULATED).replace('coefficients = { "x\'" = 0.4, "x" = 6.0 }',
                                                              'coefficients = { "x\'" = 0.4, "x" = 6.0, '
                                                              '"sign(x\')" = 0.8 }'))
         return load_problem(spec).experiment("train")
