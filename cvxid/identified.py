@@ -33,6 +33,7 @@ from cvxid.simulate import (
     System,
     simulate,
     simulate_coupled,
+    substeps_for,
 )
 
 SCHEMA = "cvxid.identified/1"
@@ -132,9 +133,10 @@ class IdentifiedModel:
         system = self.system(history)
         k, past = simulation_start(experiment, self.spec.delay, system.history)
         t, u = experiment.time[k:], experiment.input(self.spec.input)[k:]
+        substeps = substeps_for(experiment.output(self.spec.coordinate)[k:], experiment.dt)
 
         def run(x0: float, v0: float) -> tuple[np.ndarray, np.ndarray]:
-            x, v = simulate(system, t, u, x0, v0, past=past)
+            x, v = simulate(system, t, u, x0, v0, substeps=substeps, past=past)
             return padded(x, k), padded(v, k)
 
         return run
@@ -340,10 +342,11 @@ class IdentifiedSystem:
         k, past = simulation_start(experiment, delay, system.history if delay is not None else None)
         t = experiment.time[k:]
         inputs = [experiment.input(m.spec.input)[k:] for m in self.models.values()]
+        substeps = max(substeps_for(experiment.output(c)[k:], experiment.dt) for c in self.coordinates)
 
         def run(initial: dict) -> dict[str, np.ndarray]:
             x, _ = simulate_coupled(system, t, inputs, {c: v[0] for c, v in initial.items()},
-                                    {c: v[1] for c, v in initial.items()}, past=past)
+                                    {c: v[1] for c, v in initial.items()}, past=past, substeps=substeps)
             return {c: padded(values, k) for c, values in x.items()}
 
         return run

@@ -1,5 +1,6 @@
 """The examples in examples/ run (small settings) and tell their story."""
 
+import re
 import runpy
 import sys
 
@@ -49,12 +50,15 @@ def test_paper_example_table(monkeypatch, tmp_path, capsys):
 @pytest.mark.slow
 @pytest.mark.skipif(not (SHARED_DATA / "silverbox_SNLS80mV.mat").is_file(), reason="Silverbox data absent")
 def test_silverbox_diagnosis_finds_cubic_stiffness(monkeypatch, tmp_path, capsys):
+    """`cvxid run silverbox` on real data: the diagnosis adds cubic stiffness first, and the
+    polished model's free-run RMS error is at most 0.32 mV on both tests (measured 0.307 and
+    0.317 mV; the equation-error model of earlier sessions: 0.58 and 0.56 mV)."""
     out = run_example("silverbox.py", monkeypatch, tmp_path, capsys)
-    lines = [line for line in out.splitlines() if "free-run fit" in line]
-    before = [float(line.split("fit")[1].split("%")[0]) for line in lines if line.startswith("linear")]
-    after = [float(line.split("fit")[1].split("%")[0]) for line in lines if line.startswith("after")]
-    assert "cubic_stiffness" in out.split("Refinement")[1]
-    assert min(after) > 95 and max(before) < 90  # the addition raises the fit substantially
+    refinement = out.split("Refinement")[1]
+    assert refinement.split("\n")[3].startswith("cubic_stiffness")
+    line = next(line for line in out.splitlines() if line.startswith("free-run RMS error"))
+    errors = [float(v) for v in re.findall(r"([0-9.]+) mV", line)]
+    assert len(errors) == 2 and max(errors) <= 0.32, line
 
 
 def test_constraints_change_the_answer(monkeypatch, tmp_path, capsys):

@@ -138,6 +138,7 @@ class RunResult:
             "method": cmp.initial, "position": {coord: cmp.initial_state[0]},
             "velocity": {coord: cmp.initial_state[1]}}
         return {"test_fit_percent": None if cmp is None else cmp.fit_percent,
+                "test_rms": None if cmp is None else cmp.rms,
                 "test_fit_percent_record_start": None if cmp is None else cmp.record_fit_percent,
                 "test_fit_percent_noise_ceiling": None if cmp is None else cmp.ceiling_percent,
                 "test_initial_state": state,

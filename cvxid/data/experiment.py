@@ -175,10 +175,13 @@ class Experiment:
     def part(self, start: float, end: float) -> "Experiment":
         """The samples from fraction ``start`` to fraction ``end`` of the record (``0.8, 1``:
         its last 20 %)."""
-        a, b = int(round(start * self.n)), int(round(end * self.n))
-        if b - a < MIN_SAMPLES:
-            raise CvxidError(f"experiment '{self.name}': the part {start:g} … {end:g} holds {b - a} samples; at least "
-                             f"{MIN_SAMPLES} are needed")
+        return self.slice(int(round(start * self.n)), int(round(end * self.n)))
+
+    def slice(self, a: int, b: int) -> "Experiment":
+        """Samples ``a`` (included) to ``b`` (excluded)."""
+        if not 0 <= a < b <= self.n or b - a < MIN_SAMPLES:
+            raise CvxidError(f"experiment '{self.name}': samples {a} … {b} of its {self.n} hold {max(b - a, 0)} "
+                             f"samples; at least {MIN_SAMPLES} inside the record are needed")
         return Experiment(self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()},
                           {k: v[a:b] for k, v in self.inputs.items()}, name=self.name,
                           velocities={k: v[a:b] for k, v in self.velocities.items()}, gaps=self.gaps)

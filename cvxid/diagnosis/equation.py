@@ -74,6 +74,15 @@ class Comparison:
     record_free_run: np.ndarray | None = None
     ceiling_percent: float | None = None
 
+    @property
+    def rms(self) -> float | None:
+        """Root-mean-square error of the free run over the samples it covers (the output's
+        units: the benchmarks' "simulation RMSE")."""
+        if self.free_run is None:
+            return None
+        covered = np.isfinite(self.free_run)
+        return float(np.sqrt(np.mean((self.free_run[covered] - self.measured[covered]) ** 2)))
+
     def table(self) -> pd.DataFrame:
         rows = {"free run": [self.fit_percent, self.nrmse]}
         if self.initial == "estimated":

@@ -50,7 +50,7 @@ from cvxid.identify.profile import DelayProfile, effective_rows
 from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
-from cvxid.simulate import SimulationDiverged, half_steps, integrate
+from cvxid.simulate import SimulationDiverged, half_steps, integrate, substeps_for
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
@@ -314,6 +314,8 @@ class _Problem:
         self.fixed_tau = fixed_tau if self.delay is not None else None
         history = next(iter(self.systems.values())).history
         self.starts, self.pasts = zip(*(simulation_start(e, self.delay, history) for e in experiments))
+        self.substeps = [max(substeps_for(e.output(c)[k::self.stride], e.dt * self.stride) for c in self.coordinates)
+                         for e, k in zip(experiments, self.starts)]
         for e, k in zip(experiments, self.starts):
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
@@ -422,7 +424,7 @@ class _Problem:
                 X, _ = integrate(
                     t, lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None],
                     self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
-                    any_system.derivative, any_system.history, past=self.pasts[i])
+                    any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
                 out.append((X - Y[:, :, None]).reshape(-1, B))
             except SimulationDiverged:
                 out.append(np.full((Y.size, B), 1e6))

@@ -36,9 +36,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import welch
 
 from cvxid.errors import CvxidError
+from cvxid.metrics import band_edge
 
 PERIODS = 1.0
 """Window length in periods of the output's 95 % band edge."""
@@ -62,18 +62,6 @@ class Windows:
 
     def __str__(self) -> str:
         return f"{self.kind} windows of {self.seconds:.3g} s"
-
-
-def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
-    """The angular frequency below which ``share`` of the variance of ``y`` lies, above the
-    noise floor (the median of the upper half of the spectrum, taken as white noise)."""
-    f, pxx = welch(y - np.mean(y), fs=1.0 / dt, nperseg=min(y.size, 4096))
-    floor = np.median(pxx[f.size // 2:])
-    power = np.clip(pxx - floor, 0.0, None)
-    cumulative = np.cumsum(power)
-    if cumulative[-1] <= 0:
-        return float(2 * np.pi * f[-1])
-    return float(2 * np.pi * f[np.searchsorted(cumulative, share * cumulative[-1])])
 
 
 def usable_seconds(model, experiments) -> float:

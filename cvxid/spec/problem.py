@@ -187,6 +187,8 @@ class ProblemSpec:
             experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
         else:
             experiment = self._loaded(which, table, where)
+        if "samples" in table:
+            experiment = experiment.slice(*table["samples"])
         return experiment.part(*table["fraction"]) if "fraction" in table else experiment
 
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
@@ -220,7 +222,7 @@ class ProblemSpec:
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
-DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction"}
+DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
@@ -294,6 +296,12 @@ def data_sections(raw: Table) -> dict[str, dict]:
                     or not 0 <= part[0] < part[1] <= 1):
                 raise CvxidError(f"spec: [{where}] fraction must be [start, end] with 0 <= start < end <= 1 (the part "
                                  f"of the record used, e.g. [0, 0.8] to train and [0.8, 1] to test), got {part!r}")
+        if "samples" in table:
+            part = table["samples"]
+            if (not isinstance(part, list) or len(part) != 2 or not all(isinstance(v, int) and not isinstance(v, bool)
+                                                                      for v in part) or not 0 <= part[0] < part[1]):
+                raise CvxidError(f"spec: [{where}] samples must be [first, end] sample indices with 0 <= first < end (the "
+                                 f"samples used, end excluded, e.g. [40650, 105712]), got {part!r}")
         if "faults" in table:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
