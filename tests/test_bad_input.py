@@ -179,3 +179,22 @@ def test_a_build_larger_than_the_memory_available_is_refused_before_any_work(mon
         RegressionBuilder(model, record, "savgol", window="record")
     assert RegressionBuilder(model, record, "savgol", window="auto").window is not None
     assert RegressionBuilder(model, record, "savgol", window="record", allow_large=True).window is None
+
+
+def test_a_term_the_data_do_not_show_is_named_after_the_polish(tmp_path):
+    """x^2 listed for a linear oscillator: its output-error 95 % interval contains 0 and the
+    run says so; the true terms are not named."""
+    import json
+
+    from cvxid.app.cli import main
+
+    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+
+    text = ('name = "spurious"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.4, "x" = 6.0 }\n'
+            + TRAIN_SIMULATED + "\n" + TEST_SIMULATED
+            + '\n[model.library]\nterms = ["x", "x\'", "x^2"]\n[fit]\nestimator = "lstsq"\nrefine = "output_error"\n')
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+    said = [w for w in warnings if "the data do not determine" in w]
+    assert len(said) == 1 and "x^2 (" in said[0] and "x (" not in said[0] and "x' (" not in said[0], warnings

@@ -35,11 +35,14 @@ def test_init_writes_a_spec_that_runs_as_written_and_finds_the_friction(tmp_path
     text = (tmp_path / "specs" / "rig.toml").read_text()
     assert 'file = "../rig.csv"' in text and 'output = { position = "position" }' in text
     assert "fraction = [0, 0.8]" in text and "fraction = [0.8, 1]" in text and "[diagnose]" in text
+    assert '\nrefine = "output_error"' in text  # on as written; off here to keep the suite short (25 s more)
+    quick = text.replace('\nrefine = "output_error"', "\n# refine")
+    (tmp_path / "specs" / "rig.toml").write_text(quick)
     assert main(["run", str(tmp_path / "specs" / "rig.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert result["refinement"][0]["added"] == "coulomb"  # the missing friction, found from the start spec
     assert result["test_fit_percent"] > 95
-    # asked twice, it keeps the user's file
+    # asked again, it keeps the user's file
     assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "specs" / "rig.toml")]) == 2
     assert "exists; choose another -o or pass --force" in capsys.readouterr().err
 

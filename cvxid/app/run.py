@@ -107,6 +107,8 @@ def _warn_implausible(out: RunResult) -> None:
                 f"simulated). Constrain it ([model.constraints] nonnegative = [\"{model.spec.inertia_term.name}\"]), "
                 "keep the windowed integrals (window = \"auto\") on long records, or check the data", CvxidWarning,
                 stacklevel=2)
+    if out.polish is not None:
+        _warn_undetermined(out.polish)
     if out.path is None or out.lam is None or out.problem is None:
         return
     candidates = out.problem.penalties > 0
@@ -117,6 +119,22 @@ def _warn_implausible(out: RunResult) -> None:
             "validation error was least with no term at all; the model is likely missing an effect or the data "
             "do not excite it (run the diagnosis, [diagnose], or give the terms you expect)", CvxidWarning,
             stacklevel=2)
+
+
+def _warn_undetermined(polish) -> None:
+    """Coefficients whose output-error 95 % interval contains 0: the data do not show their
+    terms (the delay is left to :func:`_warn_confounded_gain`)."""
+    loose = []
+    for name, value in polish.parameters.items():
+        se = polish.standard_errors.get(name, np.nan)
+        if name == "tau" or name in polish.states:
+            continue
+        if np.isfinite(se) and abs(value) < 1.96 * se:
+            loose.append(f"{name} ({value:.3g} ± {1.96 * se:.2g})")
+    if loose:
+        warnings.warn(
+            f"the data do not determine {', '.join(loose)}: each 95 % interval contains 0, so these terms may not "
+            "belong in the model (remove them, or check with more or richer data)", CvxidWarning, stacklevel=2)
 
 
 def _best_velocity(spec) -> RunResult:

@@ -5,7 +5,7 @@ It reads the file (``.csv``, ``.mat``, ``.npz``), finds the time, output and inp
 the output the smoother of the two others, as a mechanical system filters its input) or
 takes them from the options, and writes a spec that runs as written: a linear model
 ``m x'' + c x' + k x = u + b x(t - tau)`` with an exact delay of unknown gain, the
-diagnosis on, and comments saying what each key does and what to try next.  Without a
+diagnosis on, the output-error polish on (intervals for every parameter), and comments saying what each key does and what to try next.  Without a
 test record it splits the one record: the first 80 % to train, the last 20 % to test.
 """
 
@@ -171,7 +171,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
         "",
         "[fit]",
         'estimator = "lstsq"                  # every listed term estimated; "lasso" selects from a library',
-        '# refine = "output_error"            # then polish by simulation error (slower; intervals for tau)',
+        'refine = "output_error"              # then polish by simulation error: intervals for every parameter',
+        '                                     # and the delay (slower: comment it out for a first quick look)',
         "",
         "[diagnose]                           # rank the missing physical effects on the test data",
         "refine = true                        # add the best one and refit while the error falls",

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Sequence
 
 import numpy as np
@@ -83,6 +83,8 @@ class PolishResult:
     seconds: float
     profile: DelayProfile | None = None  # the output-error profile over the delay
     effective_rows: float = 0.0  # independent residuals (their autocorrelation)
+    correlations: dict = field(default_factory=dict)  # (parameter, parameter) -> correlation of their estimates
+    states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
 
     @property
     def model(self) -> IdentifiedModel:
@@ -283,10 +285,16 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     n_eff = effective_rows(r)
     se = np.full(theta.size, np.nan)
     seen = np.any(sol.jac != 0, axis=0)  # a delay below the simulator's resolution moves nothing
+    correlations = {}
     try:  # coloured residuals carry fewer independent samples than they have
         J = sol.jac[:, seen]
         cov = np.linalg.inv(J.T @ J) * float(r @ r) / dof * r.size / n_eff
         se[seen] = np.sqrt(np.clip(np.diag(cov), 0, None))
+        names = [n for n, s in zip(problem.names, seen) if s]
+        scale = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
+        corr = cov / np.outer(scale, scale)
+        physical = [i for i, n in enumerate(names) if n not in problem.state_names]
+        correlations = {(names[i], names[j]): float(corr[i, j]) for a, i in enumerate(physical) for j in physical[a + 1:]}
     except np.linalg.LinAlgError:
         pass
     errors = dict(zip(problem.names, map(float, se)))
@@ -295,7 +303,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
-                        effective_rows=n_eff)
+                        effective_rows=n_eff, correlations=correlations, states=frozenset(problem.state_names))
 
 
 class _Problem:
@@ -363,6 +371,8 @@ class _Problem:
                 lower += [-np.inf, -np.inf]
         keep = [i for i, n in enumerate(names) if n not in self.tied]
         self.names = [names[i] for i in keep]
+        self.state_names = {self._state(c, i, o) for c in self.coordinates for i in range(len(experiments))
+                            for o in (0, 1)}
         lower = np.array(lower)[keep]
         upper = np.full(len(self.names), np.inf)
         if "tau" in self.names:
