@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 from scipy.signal import welch
+from scipy.stats import chi2
 
 
 SIGNAL_DOMINATES = 3.0
@@ -29,8 +30,11 @@ def noise_level(y: np.ndarray) -> float:
     y = np.asarray(y, float)
     d3 = np.diff(y, 3)
     differences = float(np.median(np.abs(d3)) / 0.6745 / np.sqrt(20.0))
-    _, pxx = welch(y - np.mean(y), fs=1.0, nperseg=min(y.size, 4096))
-    floor = float(np.sqrt(0.5 * np.median(pxx[pxx.size // 2:])))
+    segment = min(y.size, 4096)
+    _, pxx = welch(y - np.mean(y), fs=1.0, nperseg=segment)
+    averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
+    median_to_mean = chi2.median(averaged) / averaged  # a white bin's median is below its mean (ln 2 for one segment)
+    floor = float(np.sqrt(0.5 * np.median(pxx[pxx.size // 2:]) / median_to_mean))
     return floor if differences > SIGNAL_DOMINATES * floor else differences
 
 

@@ -367,7 +367,7 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 
 
 # ---------------------------------------------------------------------- kernels
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps):
     """:math:`q_d^{(r)}(t_k + c h - \\tau)` from the history buffer (or before t = 0)."""
     if instant[b]:
@@ -389,7 +389,7 @@ def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, 
     return w0 * V[j, d, b] + ws[ci, 1, b] * A[j, d, b] + ws[ci, 2, b] * V[j + 1, d, b] + ws[ci, 3, b] * A[j + 1, d, b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _program(ops, args, first, stop, x, v, stack):
     """An expression's postfix program (:mod:`cvxid.model.expression`) at the state (x, v)."""
     top = 0
@@ -433,7 +433,7 @@ def _program(ops, args, first, stop, x, v, stack):
     return stack[0]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A,
            steps, h, out):
     eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
@@ -473,7 +473,7 @@ def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws
         out[e] /= mass[e, b]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
     """RK4 with a Hermite history of the delayed coordinate, one variant of the batch at a
     time (compiled).  ``terms``: the codes of :func:`_term_codes`."""

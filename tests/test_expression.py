@@ -172,3 +172,22 @@ def re_search(pattern, text):
     import re
 
     return re.search(pattern, text) is not None
+
+
+def test_a_division_by_zero_is_a_diverged_simulation_and_a_non_finite_column_an_error():
+    """1/x at x = 0: the compiled kernel returned a ZeroDivisionError traceback before (numba's
+    Python error model); now inf, a diverged simulation.  x^1.5 of a signal crossing 0: a
+    regression column of NaN ended in an SVD failure; now an error naming the term."""
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+    from cvxid.regression.builder import RegressionBuilder
+    from cvxid.simulate import SimulationDiverged
+
+    t = np.arange(2001) * 1e-3
+    system = System((parse_term("x'"), parse_term("sin(x) / x")), np.array([0.3, 1.0]), 1.0, "x")
+    with pytest.raises(SimulationDiverged, match="diverged at t = 0"):
+        simulate(system, t, np.sin, 0.0, 0.0)
+    record = cvxid.Experiment(t, {"x": np.sin(5 * t)}, {"f": np.cos(3 * t)})
+    model = ModelSpec(Library([parse_term("x'"), parse_term("x^1.5")]))
+    with pytest.raises(CvxidError, match=r"term 'x\^1.5' is not finite on these data .* e.g. abs\(x\)\^1.5"):
+        RegressionBuilder(model, record, "savgol").at(None)

@@ -83,3 +83,32 @@ def test_bad_data_keys_are_named(tmp_path, capsys, keys, message):
     import re
 
     assert re.search(message, cli_error(tmp_path, capsys, text))
+
+
+@pytest.mark.parametrize("header, chosen", [
+    ("time [s],force [N],position [m]", ("time [s]", "position [m]", "force [N]")),
+    ("t,x,xdot,motor_cmd", ("t", "x", "motor_cmd")),
+    ('t,u,x"1', ("t", 'x"1', "u")),
+    ("t,u,θ", ("t", "θ", "u")),
+])
+def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, header, chosen):
+    """Units in brackets and words in names are read; a name that is no ASCII identifier is
+    quoted in the spec and the coordinate is called x (a quote or a θ made invalid TOML)."""
+    import csv
+
+    record = simulated_record()
+    names = next(csv.reader([header]))
+    columns = {"t": record.time, "x": record.output("x"), "u": record.input("f")}
+    if len(names) == 4:  # t, x, its derivative (not used), the command
+        data = [columns["t"], columns["x"], np.gradient(columns["x"], record.dt), columns["u"]]
+    else:  # time, input, output
+        data = [columns["t"], columns["u"], columns["x"]]
+    with open(tmp_path / "rig.csv", "w", newline="", encoding="utf-8") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(names)
+        writer.writerows(np.column_stack(data).tolist())
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "rig.toml")]) == 0
+    spec = load_problem(tmp_path / "rig.toml")
+    table = spec.data["train"]
+    assert (table["time"], *table["output"].values(), *table["input"].values()) == chosen
+    assert np.allclose(spec.experiment("train").output(spec.model.coordinate)[:5], record.output("x")[:5])

@@ -94,7 +94,7 @@ def _long(args) -> int:
         raise CvxidError("--long writes its own records: give no SPEC")
     try:
         sizes = [int(float(v)) for v in args.long.split(",")]
-    except ValueError:
+    except (ValueError, OverflowError):
         raise CvxidError(f"--long takes record lengths in samples, like 1e5,1e6,2e6, got '{args.long}'") from None
     if any(not 100 <= n <= 10**8 for n in sizes):
         raise CvxidError(f"--long: each record length must lie in 100 … 1e8 samples, got {args.long}")

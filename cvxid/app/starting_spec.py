@@ -11,7 +11,9 @@ test record it splits the one record: the first 80 % to train, the last 20 % to 
 
 from __future__ import annotations
 
+import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -52,9 +54,21 @@ def _numeric(columns: dict) -> dict[str, np.ndarray]:
     return out
 
 
+def _words(name: str) -> list[str]:
+    """A column name's words, its units dropped: ``"time [s]"`` -> ``["time"]``,
+    ``"motor_cmd"`` -> ``["motor", "cmd"]``."""
+    plain = re.sub(r"[\[(].*?[\])]", " ", name.lower())
+    return [w for w in re.split(r"[^a-z0-9]+", plain) if w]
+
+
 def _named(names, wanted) -> str | None:
-    lower = {n.strip().lower(): n for n in names}
-    return next((lower[w] for w in wanted if w in lower), None)
+    """The column whose name (or one of its words) comes first in ``wanted``."""
+    for word in wanted:
+        for name in names:
+            words = _words(name)
+            if words == [word] or (len(words) > 1 and word in words and len(word) > 1):
+                return name
+    return None
 
 
 def detect_columns(columns: dict, time: str | None = None, output: str | None = None, input: str | None = None,
@@ -77,27 +91,30 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
                              "give the sample step with --dt when the file has none")
         reasons.append(f"time '{time}'")
     others = [n for n in numeric if n != time]
-    output = output or _named([n for n in others if n != input], OUTPUT_NAMES)
-    input = input or _named([n for n in others if n != output], INPUT_NAMES)
+    said = {"output": "given", "input": "given"}
+    if output is None and (found := _named([n for n in others if n != input], OUTPUT_NAMES)):
+        output, said["output"] = found, "by its name"
+    if input is None and (found := _named([n for n in others if n != output], INPUT_NAMES)):
+        input, said["input"] = found, "by its name"
     rest = [n for n in others if n not in (output, input)]
-    if output is None or input is None:
-        pool = [n for n in ([output] if output else []) + ([input] if input else []) + rest]
-        if len(rest) < (output is None) + (input is None) or len(pool) < 2:
-            raise CvxidError(f"cannot tell the output and input apart among {', '.join(sorted(others))}: "
-                             "name them with --output and --input")
-        if output is None and input is None:
-            if len(rest) != 2:
-                raise CvxidError(f"{len(rest)} candidate columns ({', '.join(rest)}): name the output and the input "
-                                 "with --output and --input")
-            rough = {n: noise_level(numeric[n]) / (np.std(numeric[n]) or 1.0) for n in rest}
-            output, input = sorted(rest, key=lambda n: rough[n])
-            reasons.append(f"output '{output}' (the smoother signal) and input '{input}' (the rougher one): swap "
-                           "them if that is wrong")
-        else:
-            (missing,) = rest[:1]
-            output, input = (missing, input) if output is None else (output, missing)
-    else:
-        reasons.append(f"output '{output}' and input '{input}' by their names")
+    if output is None and input is None:
+        if len(rest) != 2:
+            raise CvxidError(f"cannot tell the output and the input apart among {', '.join(rest)}: name them with "
+                             "--output and --input")
+        rough = {n: noise_level(numeric[n]) / (np.std(numeric[n]) or 1.0) for n in rest}
+        output, input = sorted(rest, key=lambda n: rough[n])
+        said = {"output": "the smoother signal, a guess: swap with --output/--input if wrong",
+                "input": "the rougher signal, a guess"}
+    elif output is None or input is None:
+        missing = "output" if output is None else "input"
+        if len(rest) != 1:
+            raise CvxidError(f"no {missing} column found by its name among {', '.join(rest) or 'no other column'}: "
+                             f"name it with --{missing}")
+        said[missing] = "the only other column, a guess: name it with --" + missing + " if wrong"
+        output, input = (rest[0], input) if output is None else (output, rest[0])
+    reasons.append(f"output '{output}' ({said['output']}); input '{input}' ({said['input']})")
+    if len(others) > 2:
+        reasons.append(f"not used: {', '.join(n for n in others if n not in (output, input))}")
     samples = numeric[output].size
     if dt is None:
         t = numeric[time]
@@ -111,15 +128,22 @@ def _relative(path: Path, folder: Path) -> str:
 
 
 def _identifier(name: str, fallback: str) -> str:
-    return name if name.isidentifier() else fallback
+    """``name`` if it is a plain ASCII identifier (a coordinate's name in terms), else ``fallback``."""
+    return name if re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) else fallback
 
 
-def _data_table(which: str, file: str, columns: Columns, fraction: tuple[float, float] | None) -> str:
-    lines = [f"[data.{which}]", f'file = "{file}"']
-    lines.append(f'time = "{columns.time}"' if columns.time else f"dt = {columns.dt:g}                       "
+def _quoted(text: str) -> str:
+    """``text`` as a TOML basic string (JSON's escapes are TOML's)."""
+    return json.dumps(str(text))
+
+
+def _data_table(which: str, file: str, columns: Columns, coordinate: str, force: str,
+                fraction: tuple[float, float] | None) -> str:
+    lines = [f"[data.{which}]", f"file = {_quoted(file)}"]
+    lines.append(f"time = {_quoted(columns.time)}" if columns.time else f"dt = {columns.dt:g}                       "
                  "# the file has no time column: samples are this many seconds apart")
-    lines.append(f'output = "{columns.output}"')
-    lines.append(f'input = "{columns.input}"')
+    lines.append(f"output = {{ {coordinate} = {_quoted(columns.output)} }}")
+    lines.append(f"input = {{ {force} = {_quoted(columns.input)} }}")
     if fraction:
         lines.append(f"fraction = [{fraction[0]:g}, {fraction[1]:g}]           # the part of the record used here")
     lines.append('faults = "warn"                  # clipped, frozen or outlier samples: "warn", "gap" or "ignore"')
@@ -136,22 +160,20 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
     train_part = None if test else (0.0, TRAIN_FRACTION)
     usable = duration * (TRAIN_FRACTION if test is None else 1.0)
     tau_max = float(f"{min(0.5, usable / 10):.3g}")
+    why = columns.why.replace("\n", " ")
     parts = [
         f"# A starting spec written by `cvxid init {data.name}`: {columns.samples:,} samples, dt = {columns.dt:g} s "
         f"({duration:g} s).",
-        f"# Columns: {columns.why}.",
+        f"# Columns: {why}.",
         "# Run it with `cvxid run THIS_FILE --out out/`; docs/spec.md explains every key.",
-        f'name = "{data.stem}"',
+        f"name = {_quoted(data.stem)}",
         f'description = "{coordinate}\'\' + c {coordinate}\' + k {coordinate} = {force} + b {coordinate}(t - tau), '
         'a linear start; the diagnosis looks for what is missing"',
         "",
-        _data_table("train", _relative(data, spec_folder), columns, train_part).replace(
-            f'output = "{columns.output}"', f'output = {{ {coordinate} = "{columns.output}" }}').replace(
-            f'input = "{columns.input}"', f'input = {{ {force} = "{columns.input}" }}'),
+        _data_table("train", _relative(data, spec_folder), columns, coordinate, force, train_part),
         "",
-        _data_table("test", _relative(test or data, spec_folder), columns, None if test else (TRAIN_FRACTION, 1.0)).replace(
-            f'output = "{columns.output}"', f'output = {{ {coordinate} = "{columns.output}" }}').replace(
-            f'input = "{columns.input}"', f'input = {{ {force} = "{columns.input}" }}'),
+        _data_table("test", _relative(test or data, spec_folder), columns, coordinate, force,
+                    None if test else (TRAIN_FRACTION, 1.0)),
         "",
         "[model]",
         f'coordinate = "{coordinate}"',

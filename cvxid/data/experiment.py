@@ -327,11 +327,12 @@ def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str
 
 
 def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults) -> Experiment:
-    return checked(Experiment(
-        _pick(columns, time, what, source),
-        {k: _pick(columns, v, what, source) for k, v in outputs.items()},
-        {k: _pick(columns, v, what, source) for k, v in inputs.items()},
-        name=name,
-        velocities={k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()},
-        gaps=gaps,
-    ), faults)
+    t = _pick(columns, time, what, source)
+    signals = ({k: _pick(columns, v, what, source) for k, v in outputs.items()},
+               {k: _pick(columns, v, what, source) for k, v in inputs.items()},
+               {k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()})
+    # the sensor check reads the samples as recorded (resampling a jittered time would
+    # smooth a clipped top away): on the sample index first, then on the recorded time
+    recorded = checked(Experiment(np.arange(np.size(t), dtype=float), signals[0], signals[1], name=name,
+                                  velocities=signals[2], gaps=gaps), faults)
+    return Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2], gaps=recorded.gaps)

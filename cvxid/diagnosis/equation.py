@@ -123,6 +123,7 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     record, as MATLAB's ``compare`` does; the fit from the record's own start is kept
     beside it) or ``"record"`` (the record's smoothed first state)."""
     check_initial_state(initial)
+    experiment, note = longest_stretch(experiment)
     y = experiment.output(model.spec.coordinate)
     k = k_step or k_step_samples(experiment.dt)
     start = start_index(experiment, model.spec.delay)
@@ -149,8 +150,19 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     except SimulationDiverged as exc:
         ahead = None
         message = (message + "; " if message else "") + f"k-step: {exc}"
+    message = "; ".join(m for m in (note, message) if m)
     return Comparison(experiment.time[start:], measured, sim, free, nrmse, k, ahead, message,
                       initial, state, record_fit, record_sim, noise_ceiling_percent(measured))
+
+
+def longest_stretch(experiment: Experiment) -> tuple[Experiment, str]:
+    """A record with gaps (NaN samples) is compared on its longest gap-free stretch (a free
+    run cannot cross a gap); the note says which."""
+    segments = experiment.segments()
+    if len(segments) == 1 and segments[0] is experiment:
+        return experiment, ""
+    longest = max(segments, key=lambda s: s.n)
+    return longest, f"compared on the longest gap-free stretch, {longest.name} ({longest.n} of {experiment.n} samples)"
 
 
 K_STEP_SECONDS = 0.1

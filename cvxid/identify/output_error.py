@@ -50,6 +50,7 @@ from cvxid.identify.profile import DelayProfile, effective_rows
 from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
+from cvxid.regression.builder import usable_segments
 from cvxid.simulate import SimulationDiverged, half_steps, integrate, substeps_for
 
 JACOBIAN_STEP = 1e-5
@@ -119,8 +120,17 @@ def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
     return fitted if isinstance(fitted, IdentifiedSystem) else IdentifiedSystem.of(fitted)
 
 
-def _experiments(experiments: Experiment | Sequence[Experiment]) -> list[Experiment]:
-    return [experiments] if isinstance(experiments, Experiment) else list(experiments)
+def _experiments(experiments: Experiment | Sequence[Experiment], shortest: float = 0.0) -> list[Experiment]:
+    """The records as gap-free stretches (a simulation cannot cross a gap), each with its
+    own initial state; with gaps, stretches shorter than ``shortest`` seconds are left out."""
+    return usable_segments([experiments] if isinstance(experiments, Experiment) else list(experiments), shortest)
+
+
+def _shortest(system: IdentifiedSystem) -> float:
+    """The shortest stretch a polish uses: twice ``tau_max`` with a delay, else 50 samples' worth
+    is decided per record (20 simulated samples at least, :class:`_Problem`)."""
+    delay = next(iter(system.specs.values())).delay
+    return 2 * delay.tau_max if delay is not None and delay.exact else 0.0
 
 
 def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
@@ -134,7 +144,8 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     estimated delay only.  ``initial``: each experiment's starting states (see
     :func:`output_error`)."""
     start = time.perf_counter()
-    system, experiments = _system(fitted), _experiments(experiments)
+    system = _system(fitted)
+    experiments = _experiments(experiments, _shortest(system))
     points = _delay_profile(system, experiments, initial, coarse_step, grid) if grid else {}
     if points:
         tau = min(points, key=lambda t: points[t][0])
@@ -250,7 +261,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     experiment's starting states (coordinate → (position, velocity)), estimated from the
     data by default; ``fixed_tau``: keep the delay at this value."""
     start = time.perf_counter()
-    problem = _Problem(_system(fitted), _experiments(experiments), step, initial, fixed_tau)
+    system = _system(fitted)
+    problem = _Problem(system, _experiments(experiments, _shortest(system)), step, initial, fixed_tau)
     cache: dict[bytes, np.ndarray] = {}
 
     def fun(theta):

@@ -21,11 +21,13 @@ regressions at different delays share their rows and their errors compare.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 from scipy.interpolate import CubicSpline
 
 from cvxid.data.experiment import Experiment
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.model.equation import ModelSpec
 from cvxid.model.terms import DelayedSignal, Term
 from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, RestartTransform, WindowedTransform
@@ -59,6 +61,25 @@ class _Block:
         self.columns: dict[str, np.ndarray] = {}
 
 
+def usable_segments(experiments: list[Experiment], shortest: float) -> list[Experiment]:
+    """The gap-free stretches of the records; with gaps, stretches shorter than
+    ``shortest`` seconds (twice ``tau_max``: the delayed signal's history and as many rows)
+    are left out with a warning, unless none would remain."""
+    out, dropped = [], []
+    for e in experiments:
+        segments = e.segments()
+        if len(segments) == 1:
+            out += segments
+            continue
+        keep = [s for s in segments if s.duration >= shortest]
+        dropped += [s.name for s in segments if s.duration < shortest]
+        out += keep
+    if dropped and out:
+        warnings.warn(f"{len(dropped)} gap-free stretch(es) shorter than {shortest:g} s left out ({', '.join(dropped[:3])}"
+                      f"{', …' if len(dropped) > 3 else ''})", CvxidWarning, stacklevel=3)
+    return out or [s for e in experiments for s in e.segments()]
+
+
 class RegressionBuilder:
     """Regressions of one equation's data, for ``model`` and any model that differs from it
     only in its library (the coordinate, input, inertia, delay and algebraic orders fix the
@@ -69,9 +90,9 @@ class RegressionBuilder:
         self.model = model
         self.velocity = velocity
         exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
-        self.experiments = [segment for e in exps for segment in e.segments()]  # integrals restart after gaps
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
+        self.experiments = usable_segments(exps, 2 * self.start)  # integrals restart after gaps
         self.window = resolve_window(window, model, self.experiments)
         check_memory(sum(e.n for e in self.experiments), len(model.column_names), self.window is not None, allow_large)
         orders = AlgebraicOrders.for_model(model)
@@ -131,7 +152,16 @@ class RegressionBuilder:
             if term.needs_velocity:
                 symbols += sorted(s for s in term.symbols if s.endswith("'"))
             states = {s: self._state(block.segment, s)[block.rows] for s in symbols}
-            block.columns[term.name] = block.transform.column(*term.regression_signal(states))
+            with np.errstate(all="ignore"):
+                signal, order = term.regression_signal(states)
+            if not np.all(np.isfinite(signal)):
+                bad = int(np.argmax(~np.isfinite(np.broadcast_to(signal, block.rows.shape))))
+                raise CvxidError(
+                    f"term '{term.name}' is not finite on these data (first at sample {int(block.rows[bad])} of "
+                    f"'{self.experiments[block.segment].name}': a fractional power or square root of a negative "
+                    "value, a division by zero, an overflow); write it so that it is defined everywhere the state "
+                    "goes, e.g. abs(x)^1.5 for x^1.5")
+            block.columns[term.name] = block.transform.column(signal, order)
         return block.columns[term.name]
 
     def _check(self, model: ModelSpec):

@@ -62,13 +62,13 @@ def run_once(folder: Path, window: str = "windows") -> dict:
     spec.write_text(SPEC.format(window=WINDOWS[window]))
     out = folder / f"out_{window.replace(' ', '_')}"
     start = time.perf_counter()
-    process = subprocess.Popen([sys.executable, "-m", "cvxid.app.cli", "run", str(spec), "--quiet", "--out", str(out)],
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    _, status, usage = os.wait4(process.pid, 0)
+    with open(folder / "stderr.txt", "w") as stderr:  # a file, never a pipe: wait4 cannot block on it
+        process = subprocess.Popen([sys.executable, "-m", "cvxid.app.cli", "run", str(spec), "--quiet", "--out",
+                                    str(out)], stdout=subprocess.DEVNULL, stderr=stderr)
+        _, status, usage = os.wait4(process.pid, 0)
     seconds = time.perf_counter() - start
     row = {"window": window, "seconds": seconds, "peak GB": usage.ru_maxrss / 2**20}
-    error = process.stderr.read().strip()
-    process.stderr.close()
+    error = (folder / "stderr.txt").read_text().strip()
     if os.waitstatus_to_exitcode(status) != 0:
         return {**row, "error": error or f"exit status {os.waitstatus_to_exitcode(status)}"}
     result = json.loads((out / "result.json").read_text())
