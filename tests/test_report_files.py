@@ -61,3 +61,21 @@ def test_a_rerun_into_another_runs_folder_says_so(tmp_path, capsys):
     assert main(["run", str(write_spec(other)), "--out", str(out)]) == 0
     assert "replacing the files of an earlier run of 'small'" in capsys.readouterr().out
     assert not [p for p in out.iterdir() if p.name.endswith(".partial")]
+
+
+def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):
+    """`cvxid run SPEC --profile`: a table of stages whose seconds lie within the run's; a
+    stage the spec does not ask for (the polish) takes none."""
+    from cvxid.app.cli import main
+
+    from .test_sensor import SIMULATED, spec_text
+
+    (tmp_path / "spec.toml").write_text(spec_text(SIMULATED))
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--profile"]) == 0
+    out = capsys.readouterr().out.split("where the seconds went")[1]
+    rows = {line[:42].strip(): float(line[42:].split()[0]) for line in out.splitlines()[3:] if line.strip()}
+    whole = rows.pop("the whole run")
+    rows.pop("starting Python, importing cvxid")  # (NaN where /proc is missing)
+    assert rows["data (load or simulate the records)"] > 0 and rows["delay profile (convex)"] > 0
+    assert rows["output-error polish (simulations)"] == 0 and rows["bootstrap"] == 0
+    assert all(0 <= seconds <= whole for seconds in rows.values()), rows

@@ -22,11 +22,21 @@ def _run(args) -> int:
 
     if args.out:
         prepare_folder(args.out)  # an unusable --out fails before any work
-    result = run(args.spec)
-    path, replaced = write_report(result, args.out) if args.out else (None, None)  # before printing: a
+    if args.profile:
+        from cvxid.app.profile import profiled, since_start
+
+        imported = since_start()
+        (result, (path, replaced)), table = profiled(
+            lambda: (r := run(args.spec), write_report(r, args.out) if args.out else (None, None)), imported)
+    else:
+        result = run(args.spec)
+        path, replaced = write_report(result, args.out) if args.out else (None, None)  # before printing: a
     print(result.summary())                                                            # closed pipe loses nothing
     if path:
         print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
+    if args.profile:
+        print("\nwhere the seconds went (cumulative; nested stages count in each):")
+        print(table.to_string(float_format=lambda v: f"{v:.2f}"))
     return 0
 
 
@@ -174,6 +184,7 @@ def main(argv=None) -> int:
     p_run = sub.add_parser("run", help="identify the model of a problem spec", parents=[quiet])
     p_run.add_argument("spec", help="a TOML problem spec (see docs/spec.md) or a shipped problem's name")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
+    p_run.add_argument("--profile", action="store_true", help="also print where the seconds went, stage by stage")
     sub.add_parser("problems", help="list the shipped problems (run one with `cvxid run NAME`)", parents=[quiet])
     p_init = sub.add_parser("init", help="write a commented starting spec for your own record", parents=[quiet])
     p_init.add_argument("data", help="the record: .csv (header row), .mat or .npz")
