@@ -292,6 +292,8 @@ def load(
     gaps: bool = False,
     faults: str = "warn",
     dt: float | None = None,
+    samples: tuple[int, int] | None = None,
+    fraction: tuple[float, float] | None = None,
 ) -> Experiment:
     """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
@@ -301,6 +303,8 @@ def load(
     a time column.  The outputs are checked for sensor faults (clipping, a
     frozen stretch, outlier samples; :mod:`cvxid.data.sensor`): ``faults = "warn"`` warns
     about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
+    ``samples = (first, end)`` then ``fraction = (start, end)`` keep a part of the record
+    (before the check: its messages count the part's samples).
     """
     path = Path(path)
     suffix = path.suffix.lower()
@@ -315,6 +319,15 @@ def load(
             raise CvxidError(f"{path}: give the time column, or the sample step dt when the file has none")
         first = np.ravel(_pick(columns, next(iter(outputs.values())), what, path))
         time, columns = "__time", {**columns, "__time": np.arange(first.size) * float(dt)}
+    if samples is not None or fraction is not None:
+        used = [time, *outputs.values(), *inputs.values(), *(velocities or {}).values()]
+        n = np.size(_pick(columns, next(iter(outputs.values())), what, path))
+        a, b = samples if samples is not None else (0, n)
+        if not 0 <= a < b <= n:
+            raise CvxidError(f"{path}: samples {a} … {b} lie outside its {n} samples")
+        if fraction is not None:
+            a, b = a + int(round(fraction[0] * (b - a))), a + int(round(fraction[1] * (b - a)))
+        columns = {**columns, **{c: np.ravel(_pick(columns, c, what, path))[a:b] for c in used}}
     return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults)
 
 

@@ -183,10 +183,9 @@ class ProblemSpec:
         if which not in self.data:
             raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
         table, where = self.data[which], f"data.{which}"
-        if "simulate" in table:
-            experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
-        else:
-            experiment = self._loaded(which, table, where)
+        if "simulate" not in table:
+            return self._loaded(which, table, where)
+        experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
         if "samples" in table:
             experiment = experiment.slice(*table["samples"])
         return experiment.part(*table["fraction"]) if "fraction" in table else experiment
@@ -207,6 +206,8 @@ class ProblemSpec:
             name=which,
             gaps=_bool(table, "gaps", where, False),
             faults=_string(table, "faults", where, "warn", choices=FAULT_HANDLING),
+            samples=table.get("samples"),
+            fraction=table.get("fraction"),
         )
 
     def __repr__(self) -> str:
