@@ -135,25 +135,6 @@ def test_a_start_outside_the_bounds_is_projected_and_said():
     assert fit.parameters["m"] > 0 and 0 <= fit.parameters["tau"] <= model().delay.tau_max
 
 
-NO_DELAY = """name = "feedback_without_delay"
-[truth]
-mass = 1.0
-coefficients = {{ "x'" = 0.4, "x" = 6.0 }}
-delay = {{ signal = "x", gain = 1.5, tau = 0.0 }}
-{train}
-{test}
-[model.library]
-terms = ["x", "x'"]
-[model.delay]
-signal = "x"
-method = "exact"
-tau_max = 0.4
-[fit]
-estimator = "lstsq"
-refine = "output_error"
-"""
-
-
 def test_feedback_without_delay_is_identified_with_a_zero_delay(tmp_path):
     """A loop closed without delay, identified by a user who allowed one (gain unknown):
     the delay's interval lies in [0, tau_max] and covers 0 (the polish used to report 1e-10
@@ -163,11 +144,12 @@ def test_feedback_without_delay_is_identified_with_a_zero_delay(tmp_path):
 
     from cvxid.app.cli import main
 
-    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+    from .test_sensor import SIMULATED, spec_text
 
-    train, test = (text.replace("duration = 8.0", "duration = 4.0")  # hidden_friction's records, shortened
-                   for text in (TRAIN_SIMULATED, TEST_SIMULATED))
-    (tmp_path / "spec.toml").write_text(NO_DELAY.format(train=train, test=test))
+    text = (spec_text(SIMULATED)  # the sensor tests' delayed oscillator, its loop closed at once, 4 s records
+            .replace("tau = 0.15 }", "tau = 0.0 }").replace("gain = 1.5\nmethod", "method")
+            .replace("duration = 8.0", "duration = 4.0") + 'refine = "output_error"\n')
+    (tmp_path / "spec.toml").write_text(text)
     assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     low, high = result["tau"]["interval"]
