@@ -16,6 +16,17 @@ from scipy.signal import welch
 from scipy.stats import chi2
 
 
+SEGMENT = 4096
+"""Samples per Welch segment of the spectra below."""
+
+
+def _spectrum(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
+    """Welch's power spectral density of ``y`` and its floor, the median of its upper half
+    (taken as white noise)."""
+    f, pxx = welch(y - np.mean(y), fs=fs, nperseg=min(y.size, SEGMENT))
+    return f, pxx, float(np.median(pxx[f.size // 2:]))
+
+
 SIGNAL_DOMINATES = 3.0
 """Ratio of the third-difference estimate to the spectral floor's above which the signal,
 not the noise, makes the third difference (a record sampled at a few times its band)."""
@@ -30,11 +41,11 @@ def noise_level(y: np.ndarray) -> float:
     y = np.asarray(y, float)
     d3 = np.diff(y, 3)
     differences = float(np.median(np.abs(d3)) / 0.6745 / np.sqrt(20.0))
-    segment = min(y.size, 4096)
-    _, pxx = welch(y - np.mean(y), fs=1.0, nperseg=segment)
+    _, _, floor_density = _spectrum(y, 1.0)
+    segment = min(y.size, SEGMENT)
     averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
     median_to_mean = chi2.median(averaged) / averaged  # a white bin's median is below its mean (ln 2 for one segment)
-    floor = float(np.sqrt(0.5 * np.median(pxx[pxx.size // 2:]) / median_to_mean))
+    floor = float(np.sqrt(0.5 * floor_density / median_to_mean))
     return floor if differences > SIGNAL_DOMINATES * floor else differences
 
 
@@ -65,8 +76,7 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
 def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
     """The angular frequency below which ``share`` of the variance of ``y`` lies, above the
     noise floor (the median of the upper half of the spectrum, taken as white noise)."""
-    f, pxx = welch(y - np.mean(y), fs=1.0 / dt, nperseg=min(y.size, 4096))
-    floor = np.median(pxx[f.size // 2:])
+    f, pxx, floor = _spectrum(y, 1.0 / dt)
     power = np.clip(pxx - floor, 0.0, None)
     cumulative = np.cumsum(power)
     if cumulative[-1] <= 0:

@@ -51,7 +51,8 @@ from scipy.interpolate import CubicSpline
 from cvxid.errors import CvxidError
 from cvxid.model.delay import HISTORIES
 from cvxid.metrics import band_edge
-from cvxid.model.expression import POSITION, VELOCITY
+from cvxid.model.expression import (ABS, ADD, CONST, COS, DIV, EXP, MUL, NEG, POSITION, POW, SIGN, SIN, SUB,
+                                    TANH, VELOCITY)
 from cvxid.model.terms import (
     AbsProduct,
     Constant,
@@ -395,37 +396,37 @@ def _program(ops, args, first, stop, x, v, stack):
     top = 0
     for i in range(first, stop):
         op = ops[i]
-        if op <= 2:
-            stack[top] = args[i] if op == 0 else (x[int(args[i])] if op == 1 else v[int(args[i])])
+        if op <= VELOCITY:
+            stack[top] = args[i] if op == CONST else (x[int(args[i])] if op == POSITION else v[int(args[i])])
             top += 1
-        elif op <= 7:
+        elif op <= POW:
             top -= 1
             a, b = stack[top - 1], stack[top]
-            if op == 3:
+            if op == ADD:
                 stack[top - 1] = a + b
-            elif op == 4:
+            elif op == SUB:
                 stack[top - 1] = a - b
-            elif op == 5:
+            elif op == MUL:
                 stack[top - 1] = a * b
-            elif op == 6:
+            elif op == DIV:
                 stack[top - 1] = a / b
             else:
                 stack[top - 1] = a ** b
         else:
             a = stack[top - 1]
-            if op == 8:
+            if op == NEG:
                 a = -a
-            elif op == 9:
+            elif op == SIN:
                 a = np.sin(a)
-            elif op == 10:
+            elif op == COS:
                 a = np.cos(a)
-            elif op == 11:
+            elif op == TANH:
                 a = np.tanh(a)
-            elif op == 12:
+            elif op == EXP:
                 a = np.exp(a)
-            elif op == 13:
+            elif op == ABS:
                 a = abs(a)
-            elif op == 14:
+            elif op == SIGN:
                 a = 1.0 if a > 0 else (-1.0 if a < 0 else 0.0)
             else:
                 a = np.sqrt(a)

@@ -155,7 +155,7 @@ def _test_window(asked, train_window, system, test):
     """The test record's windows: the training record's, unless they were chosen
     automatically and the test record is too short to hold one (then its own)."""
     too_long = train_window is not None and any(
-        train_window.seconds > usable_seconds(spec, [s for s in test.segments()]) for spec in system.equations.values())
+        train_window.seconds > usable_seconds(spec, test.segments()) for spec in system.equations.values())
     return "auto" if asked == "auto" and too_long else train_window
 
 

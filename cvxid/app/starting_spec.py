@@ -5,8 +5,8 @@ It reads the file (``.csv``, ``.mat``, ``.npz``), finds the time, output and inp
 the output the smoother of the two others, as a mechanical system filters its input) or
 takes them from the options, and writes a spec that runs as written: a linear model
 ``m x'' + c x' + k x = u + b x(t - tau)`` with an exact delay of unknown gain, the
-diagnosis on, the output-error polish on (intervals for every parameter), and comments saying what each key does and what to try next.  Without a
-test record it splits the one record: the first 80 % to train, the last 20 % to test.
+diagnosis on, the output-error polish on (intervals for every parameter), and comments
+saying what each key does and what to try next.  Without a test record it splits the one record: the first 80 % to train, the last 20 % to test.
 """
 
 from __future__ import annotations

@@ -172,18 +172,13 @@ class Experiment:
             )
         return self.inputs[name]
 
-    def part(self, start: float, end: float) -> "Experiment":
-        """The samples from fraction ``start`` to fraction ``end`` of the record (``0.8, 1``:
-        its last 20 %)."""
-        return self.slice(int(round(start * self.n)), int(round(end * self.n)))
-
-    def slice(self, a: int, b: int) -> "Experiment":
+    def slice(self, a: int, b: int, name: str | None = None) -> "Experiment":
         """Samples ``a`` (included) to ``b`` (excluded)."""
         if not 0 <= a < b <= self.n or b - a < MIN_SAMPLES:
             raise CvxidError(f"experiment '{self.name}': samples {a} … {b} of its {self.n} hold {max(b - a, 0)} "
                              f"samples; at least {MIN_SAMPLES} inside the record are needed")
         return Experiment(self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()},
-                          {k: v[a:b] for k, v in self.inputs.items()}, name=self.name,
+                          {k: v[a:b] for k, v in self.inputs.items()}, name=name or self.name,
                           velocities={k: v[a:b] for k, v in self.velocities.items()}, gaps=self.gaps)
 
     def segments(self) -> list["Experiment"]:
@@ -199,13 +194,7 @@ class Experiment:
         runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= MIN_SAMPLES]
         if not runs:
             raise CvxidError(f"experiment '{self.name}': no gap-free run of {MIN_SAMPLES} samples or more")
-        return [
-            Experiment(
-                self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()}, {k: v[a:b] for k, v in self.inputs.items()},
-                name=f"{self.name}[{a}:{b}]", velocities={k: v[a:b] for k, v in self.velocities.items()},
-            )
-            for a, b in runs
-        ]
+        return [self.slice(int(a), int(b), f"{self.name}[{a}:{b}]") for a, b in runs]
 
     def __repr__(self) -> str:
         parts = [
@@ -236,6 +225,18 @@ def _resampled(t: np.ndarray, signals: dict, deviation: float, name: str) -> tup
         f"{(t[-1] - t[0]) / (t.size - 1):.6g} s; the record was resampled onto the uniform grid (largest time "
         f"shift {shift:.3g} s, cubic splines through the recorded times)", CvxidWarning, stacklevel=4)
     return uniform, {group: {k: on_grid(v) for k, v in sigs.items()} for group, sigs in signals.items()}
+
+
+def part_bounds(n: int, samples: tuple[int, int] | None, fraction: tuple[float, float] | None,
+                source="the record") -> tuple[int, int]:
+    """The first and end sample of a record's part: ``samples = (first, end)``, then
+    ``fraction = (start, end)`` of those (``0.8, 1``: their last 20 %)."""
+    a, b = samples if samples is not None else (0, n)
+    if not 0 <= a < b <= n:
+        raise CvxidError(f"{source}: samples {a} … {b} lie outside its {n} samples")
+    if fraction is not None:
+        a, b = a + int(round(fraction[0] * (b - a))), a + int(round(fraction[1] * (b - a)))
+    return a, b
 
 
 # ---------------------------------------------------------------------- loaders
@@ -321,12 +322,7 @@ def load(
         time, columns = "__time", {**columns, "__time": np.arange(first.size) * float(dt)}
     if samples is not None or fraction is not None:
         used = [time, *outputs.values(), *inputs.values(), *(velocities or {}).values()]
-        n = np.size(_pick(columns, next(iter(outputs.values())), what, path))
-        a, b = samples if samples is not None else (0, n)
-        if not 0 <= a < b <= n:
-            raise CvxidError(f"{path}: samples {a} … {b} lie outside its {n} samples")
-        if fraction is not None:
-            a, b = a + int(round(fraction[0] * (b - a))), a + int(round(fraction[1] * (b - a)))
+        a, b = part_bounds(np.size(_pick(columns, next(iter(outputs.values())), what, path)), samples, fraction, path)
         columns = {**columns, **{c: np.ravel(_pick(columns, c, what, path))[a:b] for c in used}}
     return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults)
 

@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
@@ -84,7 +84,6 @@ class PolishResult:
     seconds: float
     profile: DelayProfile | None = None  # the output-error profile over the delay
     effective_rows: float = 0.0  # independent residuals (their autocorrelation)
-    correlations: dict = field(default_factory=dict)  # (parameter, parameter) -> correlation of their estimates
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
 
     @property
@@ -127,8 +126,9 @@ def _experiments(experiments: Experiment | Sequence[Experiment], shortest: float
 
 
 def _shortest(system: IdentifiedSystem) -> float:
-    """The shortest stretch a polish uses: twice ``tau_max`` with a delay, else 50 samples' worth
-    is decided per record (20 simulated samples at least, :class:`_Problem`)."""
+    """The shortest gap-free stretch a polish uses: twice ``tau_max`` with an exact delay
+    (its measured history and as long again), else any (:class:`_Problem` still asks for
+    20 simulated samples)."""
     delay = next(iter(system.specs.values())).delay
     return 2 * delay.tau_max if delay is not None and delay.exact else 0.0
 
@@ -297,16 +297,10 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     n_eff = effective_rows(r)
     se = np.full(theta.size, np.nan)
     seen = np.any(sol.jac != 0, axis=0)  # a delay below the simulator's resolution moves nothing
-    correlations = {}
     try:  # coloured residuals carry fewer independent samples than they have
         J = sol.jac[:, seen]
         cov = np.linalg.inv(J.T @ J) * float(r @ r) / dof * r.size / n_eff
         se[seen] = np.sqrt(np.clip(np.diag(cov), 0, None))
-        names = [n for n, s in zip(problem.names, seen) if s]
-        scale = np.sqrt(np.clip(np.diag(cov), 1e-300, None))
-        corr = cov / np.outer(scale, scale)
-        physical = [i for i, n in enumerate(names) if n not in problem.state_names]
-        correlations = {(names[i], names[j]): float(corr[i, j]) for a, i in enumerate(physical) for j in physical[a + 1:]}
     except np.linalg.LinAlgError:
         pass
     errors = dict(zip(problem.names, map(float, se)))
@@ -315,7 +309,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
-                        effective_rows=n_eff, correlations=correlations, states=frozenset(problem.state_names))
+                        effective_rows=n_eff, states=frozenset(problem.state_names))
 
 
 class _Problem:

@@ -50,15 +50,6 @@ class Program:
     ops: np.ndarray
     args: np.ndarray
 
-    @property
-    def depth(self) -> int:
-        """The stack depth the program needs."""
-        depth = most = 0
-        for op in self.ops:
-            depth += 1 if op <= VELOCITY else (-1 if op <= POW else 0)
-            most = max(most, depth)
-        return most
-
     def evaluate(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> np.ndarray:
         """The program on arrays (each coordinate's position and velocity)."""
         stack = []

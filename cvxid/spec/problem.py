@@ -14,7 +14,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from cvxid.data.excitation import excitation
-from cvxid.data.experiment import Experiment, load
+from cvxid.data.experiment import Experiment, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
@@ -186,9 +186,9 @@ class ProblemSpec:
         if "simulate" not in table:
             return self._loaded(which, table, where)
         experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
-        if "samples" in table:
-            experiment = experiment.slice(*table["samples"])
-        return experiment.part(*table["fraction"]) if "fraction" in table else experiment
+        if "samples" not in table and "fraction" not in table:
+            return experiment
+        return experiment.slice(*part_bounds(experiment.n, table.get("samples"), table.get("fraction"), where))
 
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
