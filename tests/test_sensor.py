@@ -91,7 +91,7 @@ def test_a_loader_warns_naming_the_fault_and_the_fix(tmp_path, rng):
         cvxid.load(path, time="t", outputs={"x": "x"}, inputs={"f": "f"})
     text = " ".join(str(w.message) for w in caught)
     assert "output 'x' is clipped" in text and "maximum" in text and "minimum" in text
-    assert 'faults = "gap"' in text and "gaps = true" in text
+    assert 'faults = "gap"' in text and "record with more range" in text and "compare the test fits" in text
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         cvxid.load(path, time="t", outputs={"x": "x"}, inputs={"f": "f"}, faults="ignore")

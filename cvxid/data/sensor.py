@@ -79,8 +79,12 @@ class SensorFault:
         where = f"experiment '{experiment}': output '{self.signal}' {seen}: {self.detail}"
         if handling == "gap":
             return f"{where}; its {int(self.samples.sum())} samples are treated as gaps (faults = \"gap\")"
+        if self.kind == "clipped":
+            return (f"{where} (a saturated sensor biases every coefficient, and the peaks it lost are where a "
+                    "stiffness nonlinearity shows: record with more range if you can; faults = \"gap\" in the "
+                    "spec's data table drops the clipped samples, but the model then never sees the large "
+                    "amplitudes: compare the test fits)")
         cause = {
-            "clipped": "a saturated sensor biases every coefficient",
             "frozen": "if the sensor froze, the record is wrong there; if the system stood still, ignore this",
             "outlier": "one glitch moves every row whose window holds it",
         }[self.kind]
