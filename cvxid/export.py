@@ -10,6 +10,8 @@ rational transfer function:
     \frac{X(s)}{F(s)} = \frac{1}{m s^2 + c s + k - b\, s^q\, N(s)/D(s)},
 
 with :math:`c = \partial g/\partial \dot x` and :math:`k = \partial g/\partial x` at rest.
+An input delay :math:`u(t-\tau_u)` (:mod:`cvxid.model.input_delay`) is a second Padé
+approximation in series before the plant.
 """
 
 from __future__ import annotations
@@ -44,29 +46,39 @@ def linearized_tf(model, pade_order: int = 6):
     system = model.system()
     k, c = _linear_terms(system)
     plant = control.tf([1.0], [float(system.mass), c, k])
-    if not system.gain:
+    if system.gain:
+        num, den = control.pade(float(system.tau), pade_order)
+        delay = control.tf(num, den) * (control.tf([1.0, 0.0], [1.0]) if system.derivative else 1)
+        plant = control.feedback(plant, float(system.gain) * delay, sign=+1)
+    tau_u = model.spec.input_tau
+    if not tau_u:
         return plant
-    num, den = control.pade(float(system.tau), pade_order)
-    delay = control.tf(num, den) * (control.tf([1.0, 0.0], [1.0]) if system.derivative else 1)
-    return control.feedback(plant, float(system.gain) * delay, sign=+1)
+    num, den = control.pade(tau_u, pade_order)
+    return control.tf(num, den) * plant
 
 
 def to_nlsys(model, pade_order: int = 6):
-    """A ``control.nlsys`` with states (x, x', Padé states), input f and output x."""
+    """A ``control.nlsys`` with states (x, x', the feedback's Padé states, the input
+    delay's Padé states), input f and output x."""
     system = model.system()
     coord = system.coordinate
     coefs = np.atleast_1d(system.coefficients)
     mass, gain = float(system.mass), float(system.gain)
     pade = _pade(float(system.tau), pade_order) if gain else None
     npade = 0 if pade is None else pade.nstates
+    lag = _pade(model.spec.input_tau, pade_order) if model.spec.input_tau else None  # the input's delay
+    nlag = 0 if lag is None else lag.nstates
 
     def g(x, v):
         states = {coord: np.array([x]), coord + "'": np.array([v])}
         return sum(c * float(np.ravel(t.evaluate(states))[0]) for t, c in zip(system.terms, coefs))
 
     def update(t, state, u, params):
-        x, v, z = state[0], state[1], state[2:]
+        x, v, z, w = state[0], state[1], state[2:2 + npade], state[2 + npade:]
         f = float(np.ravel(u)[0])
+        dw = np.zeros(0)
+        if lag is not None:
+            f, dw = float((lag.C @ w + lag.D.ravel() * f)[0]), (lag.A @ w + lag.B.ravel() * f).ravel()
         feed = 0.0
         dz = np.zeros(0)
         if pade is not None:
@@ -74,9 +86,9 @@ def to_nlsys(model, pade_order: int = 6):
             feed = gain * float((pade.C @ z + pade.D.ravel() * signal)[0])
             dz = (pade.A @ z + pade.B.ravel() * signal).ravel()
         a = (f + feed - g(x, v)) / mass
-        return np.concatenate([[v, a], dz])
+        return np.concatenate([[v, a], dz, dw])
 
     return control.nlsys(
-        update, lambda t, state, u, params: state[:1], states=2 + npade, inputs=[model.spec.input],
+        update, lambda t, state, u, params: state[:1], states=2 + npade + nlag, inputs=[model.spec.input],
         outputs=[coord], name="cvxid_model",
     )

@@ -91,7 +91,7 @@ class IdentifiedModel:
     def equation(self) -> str:
         """The identified equation in physical form, e.g.
         ``0.99 x'' + 1.06 x' + … = f + 2 x(t - 0.166)``."""
-        text = self.system().equation().replace(" = f", f" = {self.spec.input}", 1)
+        text = self.system().equation().replace(" = f", f" = {self.spec.input_text()}", 1)
         delay = self.spec.delay
         if delay is not None and delay.coordinate != self.spec.coordinate:  # fed back from another coordinate
             own = self.spec.coordinate + "'" * delay.derivative
@@ -105,7 +105,7 @@ class IdentifiedModel:
         lhs = f"{float(system.mass):.6g}\\,{accel}"
         for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
             lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}\\,{term.latex}"
-        rhs = self.spec.input
+        rhs = self.spec.input_text()
         if system.gain:
             gain, signal = float(system.gain), latex_symbol(self.spec.delay.signal)
             rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g}\\,{signal}(t - {float(system.tau):.6g})"
@@ -114,7 +114,7 @@ class IdentifiedModel:
     def regression_equation(self) -> str:
         """The identified regression, column by column (delay terms unresolved)."""
         parts = [f"{c:+.6g} {n}" for n, c in self.coefficients.items() if c != 0.0]
-        return " ".join(parts) + f" = {self.spec.input}"
+        return " ".join(parts) + f" = {self.spec.input_text()}"
 
     def simulate(self, experiment: Experiment, x0: float | None = None, v0: float | None = None,
                  history: str | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -132,7 +132,7 @@ class IdentifiedModel:
         input, the measured past) prepared once: for searches over the start."""
         system = self.system(history)
         k, past = simulation_start(experiment, self.spec.delay, system.history)
-        t, u = experiment.time[k:], experiment.input(self.spec.input)[k:]
+        t, u = experiment.time[k:], self.spec.received_input(experiment)[k:]
         substeps = substeps_for(experiment.output(self.spec.coordinate)[k:], experiment.dt)
 
         def run(x0: float, v0: float) -> tuple[np.ndarray, np.ndarray]:
@@ -194,6 +194,7 @@ class IdentifiedModel:
                 "nonnegative": list(spec.nonnegative),
                 "names": dict(spec.names),
                 "orders": list(spec.orders),
+                "input_delay": None if spec.input_delay is None else spec.input_delay.as_dict(),
             },
             "coefficients": {k: float(v) for k, v in self.coefficients.items()},
             "lambda": float(self.lam),
@@ -204,6 +205,7 @@ class IdentifiedModel:
     def from_dict(cls, data: dict) -> "IdentifiedModel":
         """Rebuild a model written by :meth:`to_dict`, checking every field."""
         from cvxid.model.delay import DelayedFeedback
+        from cvxid.model.input_delay import InputDelay
         from cvxid.model.library import Library
         from cvxid.model.terms import parse_term
 
@@ -223,6 +225,7 @@ class IdentifiedModel:
                 coordinate=coord, input=str(m["input"]), inertia=bool(m["inertia"]), mass=float(m["mass"]),
                 delay=delay, nonnegative=tuple(m["nonnegative"]), names=dict(m["names"]),
                 orders=tuple(None if o is None else int(o) for o in m["orders"]), others=others,
+                input_delay=None if m.get("input_delay") is None else InputDelay.from_dict(m["input_delay"]),
             )
             coefficients = {str(k): float(v) for k, v in data["coefficients"].items()}
             tau = None if data["tau"] is None else float(data["tau"])
@@ -341,7 +344,7 @@ class IdentifiedSystem:
         system, delay = self.system(), next(iter(self.specs.values())).delay
         k, past = simulation_start(experiment, delay, system.history if delay is not None else None)
         t = experiment.time[k:]
-        inputs = [experiment.input(m.spec.input)[k:] for m in self.models.values()]
+        inputs = [m.spec.received_input(experiment)[k:] for m in self.models.values()]
         substeps = max(substeps_for(experiment.output(c)[k:], experiment.dt) for c in self.coordinates)
 
         def run(initial: dict) -> dict[str, np.ndarray]:

@@ -56,6 +56,7 @@ class RunResult:
     lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
     window: Windows | None = None  # the algebraic operation's windows (None: the whole record)
     test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
+    input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
 
     @property
     def coupled(self) -> bool:
@@ -116,6 +117,7 @@ class RunResult:
             "seconds": self.seconds,
             "warnings": self.warnings,
             "tau": self.tau,
+            "input_delay": self.input_delay,
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
                 "terms": records(self.bootstrap.summary()),
@@ -229,6 +231,9 @@ class RunResult:
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
                   if self.tau["interval"] else ")")] if self.tau else []),
+            *([f"  tau_u = {self.input_delay['estimate']:.5g} (input delay, {self.input_delay['method']}"
+               + (f", 95 % interval {self.input_delay['interval'][0]:.5g} … {self.input_delay['interval'][1]:.5g})"
+                  if self.input_delay["interval"] else ")")] if self.input_delay else []),
             *([f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
                f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s"] if self.polish else []),
             "",

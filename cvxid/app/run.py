@@ -38,10 +38,11 @@ from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
 from cvxid.identify.path import Path
+from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import fit_percent
+from cvxid.metrics import band_edge, fit_percent
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, build_regression
@@ -127,7 +128,7 @@ def _warn_undetermined(polish) -> None:
     loose = []
     for name, value in polish.parameters.items():
         se = polish.standard_errors.get(name, np.nan)
-        if name == "tau" or name in polish.states:
+        if name in ("tau", "tau_u") or name in polish.states:
             continue
         if np.isfinite(se) and abs(value) < 1.96 * se:
             loose.append(f"{name} ({value:.3g} ± {1.96 * se:.2g})")
@@ -182,12 +183,18 @@ def _identify(spec) -> RunResult:
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if fit.orders:
         system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
+    system = _bounded_input_delay(system, train)
     rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
     test_rows = SystemBuilder(system.equations, test, velocity, _test_window(fit.window, rows.window, system, test),
                               fit.allow_large) if test else None
+    whole = fit_support(system, rows, solver=fit.solver) if system.exact else None
+    input_profile = None
+    if any(s.input_delay is not None and s.input_delay.free for s in system.equations.values()):
+        system, input_profile = _estimate_input_delay(system, rows, whole.tau if whole else None, fit.solver)
+        whole = fit_support(system, rows, solver=fit.solver) if system.exact else None
     if fit.estimator == "stepwise_oe":
-        return _stepwise(spec, rows, test_rows, train, test)
-    whole, whole_system = (fit_support(system, rows, solver=fit.solver) if system.exact else None), system
+        return _stepwise(spec, system, rows, test_rows, train, test)
+    whole_system = system
     tau = whole.tau if whole else None
     regression = rows.at(tau, system.equations)
     validation = test_rows.at(tau, system.equations) if test else None
@@ -249,13 +256,33 @@ def _identify(spec) -> RunResult:
         tau_info["method"] = "joint profile"
     out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
                     float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info,
-                    lam=best.lam if selects else None, window=rows.window)
+                    lam=best.lam if selects else None, window=rows.window,
+                    input_delay=None if input_profile is None else input_profile.as_dict())
     if spec.diagnose is not None:
         _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":
         _polish(out)
     _score(out, test_rows)
     return out
+
+
+def _bounded_input_delay(system: SystemSpec, train: Experiment) -> SystemSpec:
+    """Every input delay to estimate with finite bounds: an unbounded ``tau_max`` becomes a
+    quarter period of the training output's band edge (:mod:`cvxid.model.input_delay`)."""
+    if all(s.input_delay is None or np.isfinite(s.input_delay.tau_max) for s in system.equations.values()):
+        return system
+    outputs = (train.output(s.coordinate) for s in system.equations.values())
+    edge = min(band_edge(y[np.isfinite(y)], train.dt) for y in outputs)
+    return replace(system, equations={label: replace(s, input_delay=s.input_delay.resolved(edge))
+                                      if s.input_delay is not None else s for label, s in system.equations.items()})
+
+
+def _estimate_input_delay(system: SystemSpec, rows: SystemBuilder, tau: float | None, solver: str):
+    """The input's delay by the equation-error profile of the whole library at the
+    fed-back delay ``tau`` (:func:`~cvxid.identify.profile.profile_input_delay`); the
+    system at that delay and the profile."""
+    profile = profile_input_delay(rows, system.equations, tau, nonnegative=system.nonnegative, ties=system.ties)
+    return replace(system, equations=with_input_tau(system.equations, profile.estimate)), profile
 
 
 def _compare(out: RunResult):
@@ -307,6 +334,8 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
         model, out.train, out.test, settings.candidates, velocity, window, builders=builders)
     if out.refinement.steps and model.spec.delay is not None and model.spec.delay.exact:
         out.tau = dict(out.tau, estimate=model.tau, interval=None, method="profile (after refinement)")
+    if any(step.added == "input_delay" for step in out.refinement.steps):
+        out.input_delay = {"estimate": model.spec.input_tau, "interval": None, "method": "profile (after refinement)"}
     out.system = IdentifiedSystem.of(model)
     out.problem = Problem.from_regression(rows.at(model.tau, out.system.specs), model.spec.nonnegative,
                                           spec.fit.solver)
@@ -328,6 +357,9 @@ def _polish(out: RunResult):
     if "tau" in out.polish.parameters:
         out.tau = {"estimate": out.polish.parameters["tau"], "interval": list(out.polish.interval("tau")),
                    "method": "output_error"}
+    if "tau_u" in out.polish.parameters:
+        out.input_delay = {"estimate": out.polish.parameters["tau_u"], "interval": list(out.polish.interval("tau_u")),
+                           "method": "output_error"}
 
 
 def _score(out: RunResult, test_rows: SystemBuilder | None):
@@ -340,12 +372,12 @@ def _score(out: RunResult, test_rows: SystemBuilder | None):
     out.test_mse, out.test_nmse = validation.mse(vector), validation.nmse(vector)
 
 
-def _stepwise(spec: ProblemSpec, rows: SystemBuilder, test_rows: SystemBuilder | None, train: Experiment,
-              test: Experiment | None) -> RunResult:
+def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_rows: SystemBuilder | None,
+              train: Experiment, test: Experiment | None) -> RunResult:
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.identify.stepwise`), the final model polished at the sample step."""
     ((label, family),) = rows.builders.items()
-    search = stepwise_output_error(spec.model, family, train)
+    search = stepwise_output_error(system.single, family, train)
     model = search.model
     system = IdentifiedSystem.of(model)
     problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)

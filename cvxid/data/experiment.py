@@ -161,16 +161,23 @@ class Experiment:
             )
         return self.outputs[name]
 
-    def input(self, name: str) -> np.ndarray:
+    def input(self, name: str, delay: float = 0.0) -> np.ndarray:
         """The input ``name``; ``"-u"`` is minus the input ``u`` (an equation driven by the
-        negated input, as the link equation of a flexible joint is)."""
+        negated input, as the link equation of a flexible joint is).  With ``delay``
+        :math:`\\tau_u > 0`, the input as the system receives it, :math:`u(t - \\tau_u)` at
+        the samples: a cubic spline through the record, read :math:`\\tau_u` earlier; before
+        the record's start it holds the first sample (the only value known there)."""
         if name.startswith("-") and name not in self.inputs and name[1:].strip() in self.inputs:
-            return -self.inputs[name[1:].strip()]
+            return -self.input(name[1:].strip(), delay)
         if name not in self.inputs:
             raise CvxidError(
                 f"experiment '{self.name}' has no input '{name}' (it has {sorted(self.inputs)})"
             )
-        return self.inputs[name]
+        if not delay:
+            return self.inputs[name]
+        if not np.isfinite(delay) or delay < 0:
+            raise CvxidError(f"an input delay must be a finite number >= 0, got {delay}")
+        return CubicSpline(self.time, self.inputs[name])(np.maximum(self.time - delay, self.time[0]))
 
     def slice(self, a: int, b: int, name: str | None = None) -> "Experiment":
         """Samples ``a`` (included) to ``b`` (excluded)."""

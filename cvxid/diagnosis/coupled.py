@@ -27,7 +27,7 @@ from cvxid.identified import IdentifiedSystem
 from cvxid.identify.problem import Problem
 from cvxid.identify.system import identify_system
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import CATALOGUE, resolve_term
+from cvxid.model.library import CATALOGUE, PARAMETERS, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Term
 from cvxid.progress import progress
@@ -38,7 +38,7 @@ def candidate_terms(specs: dict[str, ModelSpec], candidates: Sequence[str] | Non
     """Candidate name → term: each catalogue effect for each coordinate (``"coulomb(theta)"``),
     or the user's effect and term names; terms every equation already has are left out."""
     coords = tuple(s.coordinate for s in specs.values())
-    names = [n for n in CATALOGUE if n != "delay"] if candidates is None else list(candidates)
+    names = [n for n in CATALOGUE if n not in PARAMETERS] if candidates is None else list(candidates)
     out = {}
     for name in names:
         if name in CATALOGUE:

@@ -33,11 +33,12 @@ from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
 from cvxid.identify.problem import Problem
-from cvxid.identify.profile import profile_delay
-from cvxid.metrics import fit_percent, noise_ceiling_percent
+from cvxid.identify.profile import profile_delay, profile_input_delay
+from cvxid.metrics import band_edge, fit_percent, noise_ceiling_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
-from cvxid.model.terms import DelayedSignal, Term
+from cvxid.model.input_delay import InputDelay, default_bound
+from cvxid.model.terms import DelayedSignal, InputRate, Term
 from cvxid.progress import progress
 from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.history import start_index
@@ -194,7 +195,7 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
     d = numeric.delayed
     feedback = _measured_delayed(numeric.tau, numeric.history, numeric.derivative, t, smooth[d], vel[d])
     first = int(np.argmax(np.isfinite(feedback)))  # a measured history: predictions start where it is known
-    splines = [CubicSpline(t[first:], (experiment.input(m.spec.input) + eq.delay_gain * feedback)[first:])
+    splines = [CubicSpline(t[first:], (m.spec.received_input(experiment) + eq.delay_gain * feedback)[first:])
                for m, eq in zip(system.models.values(), numeric.equations)]
     starts = np.arange(first, len(t) - 1, k)
     local = t[: k + 1] - t[0]
@@ -294,12 +295,13 @@ def residuals(model: IdentifiedModel, experiment: Experiment) -> Residuals:
     a = savgol_filter(y, w, 3, deriv=2, delta=experiment.dt, mode="interp")
     system = model.system()
     states = {spec.coordinate: x, spec.coordinate + "'": v}
-    r = system.mass * a - experiment.input(spec.input)
+    u = spec.received_input(experiment)
+    r = system.mass * a - u
     for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
         r = r + c * term.evaluate(states)
     r = r - _measured_feedback(system, experiment.time, x, v)
     known = np.isfinite(r)  # a measured history: rows whose delayed argument precedes the record are dropped
-    return Residuals(experiment.time[known], r[known], x[known], v[known], experiment.input(spec.input)[known])
+    return Residuals(experiment.time[known], r[known], x[known], v[known], u[known])
 
 
 # ---------------------------------------------------------------------- diagnosis
@@ -343,20 +345,26 @@ class Diagnosis:
 def default_candidates(spec: ModelSpec) -> list[str]:
     """The catalogue and the spec's own effects minus what the model already has
     (``delay``: for exact-delay models)."""
-    have = set(spec.column_names)
     exact = spec.delay is not None and spec.delay.exact
-    return [
-        name for name, eff in {**CATALOGUE, **spec.effects}.items()
-        if eff.build(spec.coordinate).name not in have and (name != "delay" or exact)
-    ]
+    return [name for name in {**CATALOGUE, **spec.effects} if missing(spec, name) and (name != "delay" or exact)]
+
+
+def missing(spec: ModelSpec, name: str) -> bool:
+    """Whether the effect or term ``name`` is missing from ``spec`` (an input delay is
+    missing unless the spec estimates one)."""
+    if name == "input_delay":
+        return spec.input_delay is None or not spec.input_delay.free
+    return resolve_term(name, (spec.coordinate,), spec.effects).name not in spec.column_names
 
 
 def _candidate_terms(spec: ModelSpec, candidates: Sequence[str]) -> dict[str, Term]:
     out = {}
     for name in candidates:
-        term = resolve_term(name, (spec.coordinate,), spec.effects)
-        if term.name in spec.column_names:
+        if not missing(spec, name):
             continue
+        term = resolve_term(name, (spec.coordinate,), spec.effects)
+        if name == "input_delay":
+            term = InputRate(spec.input)  # the received input's rate
         if name == "delay":
             if not (spec.delay is not None and spec.delay.exact):
                 raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
@@ -445,6 +453,8 @@ def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     """``spec`` with a catalogue effect (or a term) added, its sign constraint included."""
     if name == "delay":
         raise CvxidError("the delay is not added but estimated again: refit the model (refit() profiles tau)")
+    if name == "input_delay":
+        raise CvxidError("an input delay is not a term: give the spec one to estimate (with_input_delay)")
     term = resolve_term(name, (spec.coordinate,), spec.effects)
     if term.name in spec.column_names:
         raise CvxidError(f"the model already has {term.name} ({name})")
@@ -452,6 +462,14 @@ def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     if name in {**CATALOGUE, **spec.effects} and effect(name, spec.effects).nonnegative:
         nonneg = nonneg + (term.name,)
     return replace(spec, library=spec.library + [term], nonnegative=nonneg)
+
+
+def with_input_delay(spec: ModelSpec, train: Experiment) -> ModelSpec:
+    """``spec`` with an input delay to estimate, from 0 to a quarter period of the training
+    output's band edge (:func:`~cvxid.model.input_delay.default_bound`)."""
+    y = train.output(spec.coordinate)
+    bound = default_bound(band_edge(y[np.isfinite(y)], train.dt))
+    return replace(spec, input_delay=InputDelay(0.0, 0.0, bound))
 
 
 # ---------------------------------------------------------------------- the loop
@@ -499,12 +517,18 @@ def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float
           velocity: str = "savgol", lam: float = 0.0, window: float | str | None = "auto",
           builder: RegressionBuilder | None = None) -> IdentifiedModel:
     """Least squares of ``spec`` on the named columns (plus the unpenalised ones); an exact
-    delay is profiled again on that support (``builder``: the train data's, to reuse)."""
+    delay and an input delay to estimate are profiled again on that support (``builder``:
+    the train data's, to reuse)."""
     family = _builder(spec, train, velocity, window, builder)
     names = spec.column_names
     mask = np.array([n in support for n in names]) | np.array([c.penalty == 0 for c in spec.columns])
-    if spec.delay is not None and spec.delay.exact:
+    exact = spec.delay is not None and spec.delay.exact
+    if exact:
         tau = profile_delay(family, support=mask, nonnegative=spec.nonnegative, model=spec).estimate
+    if spec.input_delay is not None and spec.input_delay.free:  # then the fed-back delay again at it
+        spec = spec.with_input_tau(profile_input_delay(family, spec, tau, mask, spec.nonnegative).estimate)
+        if exact:
+            tau = profile_delay(family, support=mask, nonnegative=spec.nonnegative, model=spec).estimate
     fit = Problem.from_regression(family.at(tau, spec), spec.nonnegative).refit(mask)
     coefs = {n: float(c) if m else 0.0 for n, c, m in zip(names, fit.coefficients, mask)}
     return IdentifiedModel(spec, coefs, lam, tau=tau)
@@ -531,8 +555,7 @@ def refine(
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
         pool = candidates if candidates is not None else default_candidates(model.spec)
-        pool = [c for c in pool
-                if resolve_term(c, (model.spec.coordinate,), model.spec.effects).name not in model.spec.column_names]
+        pool = [c for c in pool if missing(model.spec, c)]
         if not pool:
             break
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
@@ -544,6 +567,9 @@ def refine(
         support = [n for n, c in model.coefficients.items() if c != 0.0]
         if best == "delay":  # a wrong delay: estimate it again on the same terms
             new = refit(model.spec, train, support, None, velocity, model.lam, window, train_rows)
+        elif best == "input_delay":  # the input acts late: estimate its delay on the same terms
+            new = refit(with_input_delay(model.spec, train), train, support, model.tau, velocity, model.lam, window,
+                        train_rows)
         else:
             spec2 = with_effect(model.spec, best)
             new = refit(spec2, train, support + [dx.ranking.loc[best, "term"]], model.tau, velocity, model.lam, window,

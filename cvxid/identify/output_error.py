@@ -29,7 +29,10 @@ white-noise standard errors would then be far too small.
 Parameters are physical (a Taylor delay's shares are written back into its columns).  For
 one equation they are named ``m``, the terms' physical names, ``tau``, ``gain``, ``x0`` and
 ``v0``; for several, ``"coordinate:column"``, ``tau``, ``"coordinate:gain"`` and
-``"q0[e]"``, ``"q'0[e]"`` for experiment ``e``.
+``"q0[e]"``, ``"q'0[e]"`` for experiment ``e``.  An input delay to estimate
+(:mod:`cvxid.model.input_delay`) is ``tau_u``: the simulation reads the input through a
+cubic spline of the record at :math:`t - \tau_u`, so the error is smooth in it and its
+derivative is a central difference.
 """
 
 from __future__ import annotations
@@ -40,6 +43,7 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
 from scipy.stats import chi2
 
@@ -107,6 +111,9 @@ class PolishResult:
         error is not significantly worse)."""
         value, se = self.parameters[name], self.standard_errors[name]
         low, high = value - z * se, value + z * se
+        if name == "tau_u":  # within the input delay's bounds
+            delay = next(m.spec.input_delay for m in self.system.models.values() if m.spec.input_delay is not None)
+            return max(float(low), delay.tau_min), min(float(high), delay.tau_max)
         if name != "tau":
             return low, high
         if self.profile is not None:  # the hull, within the delays searched
@@ -272,7 +279,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
             cache[key] = problem.residuals(theta[None, :])[:, 0]
         return cache[key]
 
-    central = [problem.names.index("tau")] if "tau" in problem.names else []
+    central = [problem.names.index(n) for n in ("tau", "tau_u") if n in problem.names]
 
     def jac(theta):  # forward differences, central in the delay
         h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
@@ -362,6 +369,14 @@ class _Problem:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
             lower.append(self.delay.tau_min)
+        lagged = [m.spec.input_delay for m in system.models.values() if m.spec.input_delay is not None]
+        self.input_delay = lagged[0] if lagged else None
+        if self.input_delay is not None and self.input_delay.free:
+            names.append("tau_u")
+            start.append(self.input_delay.value)
+            lower.append(self.input_delay.tau_min)
+        self.input_splines = [[CubicSpline(e.time, e.input(m.spec.input)) for m in system.models.values()]
+                              for e in experiments] if self.input_delay is not None else None
         if self.delay is not None:
             for label, name in zip(system.models, gain_names):
                 names.append(name)
@@ -383,6 +398,8 @@ class _Problem:
         upper = np.full(len(self.names), np.inf)
         if "tau" in self.names:
             upper[self.names.index("tau")] = self.delay.tau_max
+        if "tau_u" in self.names:
+            upper[self.names.index("tau_u")] = self.input_delay.tau_max
         self.bounds = (lower, upper)
         # every start inside its bounds (least_squares refuses one outside), and said so
         wanted = np.array(start, float)[keep]
@@ -432,19 +449,37 @@ class _Problem:
         for i, e in enumerate(self.experiments):
             k = self.starts[i]
             t = e.time[k::self.stride]
-            inputs = [e.input(m.spec.input)[k::self.stride] for m in self.base.models.values()]
             x0 = np.array([values[self._state(c, i, 0)] for c in self.coordinates])
             v0 = np.array([values[self._state(c, i, 1)] for c in self.coordinates])
             Y = np.column_stack([e.output(c)[k::self.stride] for c in self.coordinates])
             try:
                 X, _ = integrate(
-                    t, lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None],
-                    self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
+                    t, self._forces(i, t, values, B), self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
                 out.append((X - Y[:, :, None]).reshape(-1, B))
             except SimulationDiverged:
                 out.append(np.full((Y.size, B), 1e6))
         return np.vstack(out)
+
+    def _forces(self, i: int, t: np.ndarray, values: dict, B: int):
+        """Experiment ``i``'s inputs at the RK4 nodes, ``(S, C, 1)``, or ``(S, C, B)`` when
+        the input's delay differs across the batch (read at :math:`t - \\tau_u`; before
+        the record, its first sample)."""
+        if self.input_splines is None:
+            inputs = [e_input[self.starts[i]::self.stride] for e_input in
+                      (self.experiments[i].input(m.spec.input) for m in self.base.models.values())]
+            return lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None]
+        taus = np.broadcast_to(values.get("tau_u", self.input_delay.value), (B,))
+        first = self.experiments[i].time[0]
+
+        def forces(fine: np.ndarray, h: float) -> np.ndarray:
+            out = {}
+            for tau_u in np.unique(taus):
+                at = np.maximum(fine - tau_u, first)
+                out[tau_u] = np.column_stack([spline(at) for spline in self.input_splines[i]])
+            return np.stack([out[tau_u] for tau_u in taus], axis=2)
+
+        return forces
 
     def initial(self, theta: np.ndarray) -> tuple[dict[str, tuple[float, float]], ...]:
         values = self.values(theta)
@@ -465,6 +500,8 @@ class _Problem:
                 if spec.delay.gain is None:
                     params["gain"] = values[self._name(label, "gain", "gain")]
             models[label] = _updated(model, s, params)
+            if "tau_u" in values and spec.input_delay is not None:
+                models[label] = replace(models[label], spec=spec.with_input_tau(values["tau_u"]))
         tau = values["tau"] if self.delay is not None else self.base.tau
         return replace(self.base, models=models, tau=tau if self.base.tau is not None else None,
                        info=dict(self.base.info, method="output_error"))

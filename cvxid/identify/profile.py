@@ -21,7 +21,7 @@ import numpy as np
 from scipy.optimize import minimize_scalar
 from scipy.stats import chi2
 
-from cvxid.errors import CvxidWarning
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.problem import constrained_least_squares
 
 GRID = 41
@@ -67,13 +67,51 @@ def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level
     over the columns (all by default), ``nonnegative`` and ``ties`` the constraints kept.
     """
     delay = builder.delay
+    return _profile(lambda tau: builder.at(tau, model), delay.tau_min, delay.tau_max, support, nonnegative, grid,
+                    level, ties)
+
+
+def profile_input_delay(builder, model, tau: float | None = None, support=None, nonnegative=(), grid: int = GRID,
+                        level: float = 0.95, ties=()) -> DelayProfile:
+    r"""Profile the least-squares optimal value over the input's delay :math:`\tau_u`
+    (:mod:`cvxid.model.input_delay`) within its bounds, the fed-back delay held at ``tau``:
+    only the target changes with :math:`\tau_u`.  ``model`` is a
+    :class:`~cvxid.model.equation.ModelSpec` (with a
+    :class:`~cvxid.regression.builder.RegressionBuilder`) or equations by label (with a
+    :class:`~cvxid.regression.builder.SystemBuilder`); every equation with an input delay
+    takes the same :math:`\tau_u`."""
+    bounds = input_delay_bounds(model)
+    return _profile(lambda tau_u: builder.at(tau, with_input_tau(model, tau_u)), *bounds, support, nonnegative, grid,
+                    level, ties, method="input delay profile")
+
+
+def with_input_tau(model, tau_u: float):
+    """``model`` (one spec, or specs by label) with every input delay at ``tau_u``."""
+    if isinstance(model, dict):
+        return {label: with_input_tau(spec, tau_u) for label, spec in model.items()}
+    return model.with_input_tau(tau_u) if model.input_delay is not None else model
+
+
+def input_delay_bounds(model) -> tuple[float, float]:
+    """The bounds of the input delay of ``model`` (one spec, or specs by label: they must agree)."""
+    specs = model.values() if isinstance(model, dict) else [model]
+    bounds = {(s.input_delay.tau_min, s.input_delay.tau_max) for s in specs if s.input_delay is not None}
+    if len(bounds) != 1:
+        raise CvxidError("the equations' input delays need the same bounds (one delay of the shared input)")
+    return next(iter(bounds))
+
+
+def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: int, level: float, ties,
+             method: str = "profile") -> DelayProfile:
+    """The profile of the least-squares optimal value over a delay in ``[lo, hi]``, given
+    the regression at any delay (``regression_at``)."""
     cache: dict[float, float] = {}
 
     def regression(tau: float):
         with warnings.catch_warnings():
             # at tau = 0 an unknown gain's column equals x: a poor candidate, not news
             warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
-            reg = builder.at(tau, model)
+            reg = regression_at(tau)
             return reg, reg.reduce()
 
     def fit(tau: float):
@@ -89,19 +127,19 @@ def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level
             cache[tau] = reduced.mse(scaled)
         return cache[tau]
 
-    taus = np.linspace(delay.tau_min, delay.tau_max, grid)
+    taus = np.linspace(lo, hi, grid)
     values = np.array([value(t) for t in taus])
     i = int(np.argmin(values))
-    lo, hi = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
-    best = minimize_scalar(value, bounds=(lo, hi), method="bounded", options={"xatol": 1e-6 * delay.tau_max})
+    left, right = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
+    best = minimize_scalar(value, bounds=(left, right), method="bounded", options={"xatol": 1e-6 * hi})
     tau = float(best.x) if best.fun <= values[i] else float(taus[i])
     reg, reduced, scaled = fit(tau)
     n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
     bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
-    interval = (_crossing(value, tau, delay.tau_min, bound, taus), _crossing(value, tau, delay.tau_max, bound, taus))
+    interval = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
     order = np.argsort(list(cache))
     all_taus = np.array(list(cache))[order]
-    return DelayProfile(all_taus, np.array(list(cache.values()))[order], tau, interval, n_eff)
+    return DelayProfile(all_taus, np.array(list(cache.values()))[order], tau, interval, n_eff, method)
 
 
 def _crossing(value, tau, edge, bound, grid) -> float:

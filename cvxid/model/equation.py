@@ -17,6 +17,7 @@ from typing import Mapping
 
 from cvxid.errors import CvxidError
 from cvxid.model.delay import DelayedFeedback
+from cvxid.model.input_delay import InputDelay
 from cvxid.model.library import Effect, Library
 from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
 
@@ -70,6 +71,8 @@ class ModelSpec:
     effects : mapping of str to Effect, optional
         Effects the spec declares (``[diagnose.effects]``): diagnosis candidates beside the
         catalogue's.
+    input_delay : InputDelay, optional
+        The input acts at :math:`t - \\tau_u` (:mod:`cvxid.model.input_delay`).
     """
 
     library: Library
@@ -85,6 +88,7 @@ class ModelSpec:
     others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
     listed: tuple[str, ...] = ()  # library terms the user listed: estimated, never selected away
     effects: Mapping[str, Effect] = field(default_factory=dict)  # the spec's own effects for the diagnosis
+    input_delay: InputDelay | None = None
 
     def __post_init__(self):
         known = set(self.column_names)
@@ -126,6 +130,24 @@ class ModelSpec:
                 term = self.delayed_term
                 cols[term.name] = Column(term, DELAY)
         return list(cols.values())
+
+    @property
+    def input_tau(self) -> float:
+        """The input's delay :math:`\\tau_u` (0 without one)."""
+        return self.input_delay.value if self.input_delay is not None else 0.0
+
+    def received_input(self, experiment) -> np.ndarray:
+        """The input as this equation receives it, :math:`u(t - \\tau_u)`, at the samples."""
+        return experiment.input(self.input, self.input_tau)
+
+    def input_text(self, digits: int = 6) -> str:
+        """The right-hand side's input: ``"u"``, or ``"u(t - 0.0375)"`` with a delay."""
+        tau = self.input_tau
+        return f"{self.input}(t - {tau:.{digits}g})" if tau else self.input
+
+    def with_input_tau(self, value: float) -> "ModelSpec":
+        """The spec with its input delay at ``value`` (within its bounds)."""
+        return replace(self, input_delay=self.input_delay.at(value))
 
     @property
     def delayed_term(self) -> DelayedSignal:
@@ -219,7 +241,7 @@ class ModelSpec:
 
     def physical(self, coefficients: Mapping[str, float], tau: float | None = None) -> dict[str, float]:
         """Physical parameters by name: ``m``, each term's coefficient, ``tau`` (and the
-        feedback ``gain`` when it was estimated)."""
+        feedback ``gain`` when it was estimated), the input's delay ``tau_u`` when it has one."""
         mass, terms, tau, gain = self.physical_terms(coefficients, tau)
         out = {"m": mass}
         for n, v in terms.items():
@@ -229,11 +251,13 @@ class ModelSpec:
             out["tau"] = tau
         if self.delay and self.delay.gain is None:
             out["gain"] = gain
+        if self.input_delay is not None:
+            out["tau_u"] = self.input_delay.value
         return out
 
     def __repr__(self) -> str:
         lhs = ("m " if self.inertia else f"{self.mass:g} ") + f"{self.coordinate}''"
-        rhs = self.input
+        rhs = self.input + ("(t - tau_u)" if self.input_delay is not None else "")
         if self.delay:
             gain = "b" if self.delay.gain is None else f"{self.delay.gain:g}"
             rhs += f" + {gain} {self.delay.signal}(t - tau)"

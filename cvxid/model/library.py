@@ -16,6 +16,7 @@ from cvxid.model.terms import (
     AbsProduct,
     Constant,
     DelayedSignal,
+    InputRate,
     Monomial,
     Sign,
     Term,
@@ -121,6 +122,13 @@ register_effect(
     "a change of the delay tau: the delayed signal's time derivative (exact-delay models)",
     lambda c: DelayedSignal(c, 1),
 )
+register_effect(
+    "input_delay",
+    "a delay of the input, u(t - tau_u): scored by the input's rate u' (its first-order Taylor column)",
+    lambda c: InputRate("u"),
+)
+PARAMETERS = ("delay", "input_delay")
+"""Effects that are parameters estimated again (a delay), not terms added to the library."""
 
 
 def effect(name: str, declared: Mapping[str, Effect] | None = None) -> Effect:

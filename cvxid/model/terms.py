@@ -197,6 +197,31 @@ class DelayedSignal(Term):
         return states[self.symbol], self.derivative
 
 
+class InputRate(Term):
+    r"""The input's rate :math:`\dot u(t - \tau_u)`: the column by which a missing input delay
+    shows, since :math:`u(t-\tau_u-\delta) \approx u(t-\tau_u) - \delta\,\dot u(t-\tau_u)`
+    (its coefficient is :math:`\delta` when moved to the left-hand side).  Its column is the
+    algebraic transform of the received input with derivative order 1
+    (:meth:`~cvxid.regression.builder.RegressionBuilder.at`); it is never simulated.
+    """
+
+    def __init__(self, input_name: str):
+        self.input = input_name
+        self.name = f"{input_name}'"
+        self.meaning = "a delay of the input (its first-order Taylor column)"
+
+    @property
+    def symbols(self) -> frozenset[str]:
+        return frozenset()
+
+    @property
+    def needs_velocity(self) -> bool:
+        return False
+
+    def evaluate(self, states: States) -> np.ndarray:
+        raise CvxidError("the input's rate is a diagnosis column; an input delay is simulated as a shifted input")
+
+
 class Sign(Term):
     """Coulomb friction :math:`\\operatorname{sign}(\\dot x)`.
 

@@ -9,7 +9,8 @@ asks for it, so the λ path, the bootstrap, the order search, the delay profile 
 candidate of the diagnosis read the same transformed columns: the data are transformed
 once per run.  :meth:`RegressionBuilder.at` adds the delayed signal
 :math:`x^{(q)}(t-\tau)` (a cubic spline of the record), as a column when the gain is
-unknown or moved into the target when it is known.
+unknown or moved into the target when it is known; the target is the transform of the
+input as the model receives it, :math:`u(t-\tau_u)` (one transform per input delay asked).
 
 With an exact delay every experiment's rows start at ``tau_max`` (the first ``tau_max``
 seconds are the measured history the delayed signal reads; no window needs its own), so
@@ -29,7 +30,7 @@ from scipy.interpolate import CubicSpline
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.model.equation import ModelSpec
-from cvxid.model.terms import DelayedSignal, Term
+from cvxid.model.terms import DelayedSignal, InputRate, Term
 from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, RestartTransform, WindowedTransform
 from cvxid.regression.memory import check_memory
 from cvxid.regression.regression import Regression
@@ -54,11 +55,13 @@ def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | Non
 
 
 class _Block:
-    """One gap-free segment: its transform, the samples it reads and cached columns."""
+    """One gap-free segment: its transform, the samples it reads, cached columns and
+    targets (by input delay)."""
 
-    def __init__(self, transform, rows: np.ndarray, segment: int, target: np.ndarray):
-        self.transform, self.rows, self.segment, self.target = transform, rows, segment, target
+    def __init__(self, transform, rows: np.ndarray, segment: int):
+        self.transform, self.rows, self.segment = transform, rows, segment
         self.columns: dict[str, np.ndarray] = {}
+        self.targets: dict[float, np.ndarray] = {}
 
 
 def usable_segments(experiments: list[Experiment], shortest: float) -> list[Experiment]:
@@ -114,11 +117,7 @@ class RegressionBuilder:
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
             keep = np.flatnonzero(e.time >= e.time[0] + self.start - 1e-9 * e.dt)  # the delayed signal is measured
-            transform = _transform(e.time[keep], orders, self.window)
-            p = transform.column(e.input(model.input)[keep])
-            if not model.inertia:
-                p = p - model.mass * transform.column(e.output(model.coordinate)[keep], 2)
-            self.blocks.append(_Block(transform, keep, i, p))
+            self.blocks.append(_Block(_transform(e.time[keep], orders, self.window), keep, i))
 
     @property
     def delay(self):
@@ -146,6 +145,17 @@ class RegressionBuilder:
                 states[symbol] = estimate_velocity(states[coord], e.time, self.velocity)
         return states[symbol]
 
+    def _target(self, block: _Block, model: ModelSpec) -> np.ndarray:
+        """The transform of the input the model receives (minus a known inertia's share)."""
+        tau_u = model.input_tau
+        if tau_u not in block.targets:
+            e = self.experiments[block.segment]
+            p = block.transform.column(model.received_input(e)[block.rows])
+            if not model.inertia:
+                p = p - model.mass * block.transform.column(e.output(model.coordinate)[block.rows], 2)
+            block.targets[tau_u] = p
+        return block.targets[tau_u]
+
     def _column(self, block: _Block, term: Term) -> np.ndarray:
         if term.name not in block.columns:
             symbols = list(self.model.coordinates)  # positions always; velocities where the column needs them
@@ -164,9 +174,13 @@ class RegressionBuilder:
             block.columns[term.name] = block.transform.column(signal, order)
         return block.columns[term.name]
 
+    def _input_rate(self, block: _Block, model: ModelSpec) -> np.ndarray:
+        """The column of the received input's rate (a diagnosis candidate: a missing input delay)."""
+        return block.transform.column(model.received_input(self.experiments[block.segment])[block.rows], 1)
+
     def _check(self, model: ModelSpec):
         same = (model.coordinates, model.input, model.inertia, model.mass, model.delay, model.orders,
-                model.keep_initial_conditions)
+                model.keep_initial_conditions)  # the input's delay may differ: its target is one transform
         mine = (self.model.coordinates, self.model.input, self.model.inertia, self.model.mass, self.model.delay,
                 self.model.orders, self.model.keep_initial_conditions)
         if same != mine:
@@ -191,7 +205,7 @@ class RegressionBuilder:
         cols = model.columns
         Ps, ps = [], []
         for block in self.blocks:
-            p = block.target
+            p = self._target(block, model)
             if exact:
                 t = self.experiments[block.segment].time[block.rows]
                 shifted = self._splines[block.segment](t - tau)
@@ -199,6 +213,7 @@ class RegressionBuilder:
                     p = p + model.delay.gain * block.transform.column(shifted, model.delay.derivative)
             Ps.append(np.column_stack([
                 block.transform.column(shifted, c.term.derivative) if isinstance(c.term, DelayedSignal)
+                else self._input_rate(block, model) if isinstance(c.term, InputRate)
                 else self._column(block, c.term) for c in cols
             ]))
             ps.append(p)

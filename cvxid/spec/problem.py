@@ -21,6 +21,7 @@ from cvxid.identify.bootstrap import BootstrapSettings
 from cvxid.identify.path import SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
+from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Effect, Library, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
@@ -225,7 +226,8 @@ class ProblemSpec:
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
-MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie"}
+MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
+              "input_delay"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
             "refine", "window", "loss", "allow_large"}
 
@@ -400,6 +402,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         )
         if delay.exact and "taylor_order" in d:
             raise CvxidError(f"spec: [{dw}] taylor_order has no meaning with method = 'exact'; remove it")
+    input_delay = _input_delay(table, where) if "input_delay" in table else None
     cons = _table(table, "constraints", where, {"nonnegative"})
     names_t = table.get("names", {})
     if not isinstance(names_t, Mapping):
@@ -431,7 +434,25 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
         others=tuple(others),
         listed=listed,
+        input_delay=input_delay,
     ), polynomial
+
+
+def _input_delay(table: Table, where: str) -> InputDelay:
+    """``input_delay = 0.03`` (known, seconds) or ``[model.input_delay]`` with optional
+    ``tau_min`` and ``tau_max`` (estimated; ``tau_max`` by default a quarter period of the
+    output's band edge)."""
+    iw = f"{where}.input_delay"
+    if not isinstance(table["input_delay"], Mapping):
+        return InputDelay.known(_number(table, "input_delay", where, within=(0, 10.0),
+                                        fix="a known input delay in seconds, or a table [model.input_delay] with "
+                                            "tau_min and tau_max to estimate it"))
+    d = _table(table, "input_delay", where, {"tau_min", "tau_max"})
+    low = _number(d, "tau_min", iw, 0.0, within=(0, 10.0), fix="a delay cannot be negative")
+    high = _number(d, "tau_max", iw, positive=True, within=(0, 10.0)) if "tau_max" in d else np.inf
+    if not high > low:
+        raise CvxidError(f"spec: [{iw}] needs tau_min < tau_max, got {low:g} and {high:g}")
+    return InputDelay(low, low, high)
 
 
 def _fit(table: Table) -> FitSettings:

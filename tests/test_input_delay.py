@@ -1,0 +1,108 @@
+"""An input that acts late, u(t - tau_u): estimated, diagnosed, simulated, saved, exported.
+
+Records are simulated here (a cubic oscillator driven by a seeded multisine that reaches
+it 0.05 s late, 10 ms sampling, noise 0.01 on output and input) and written as CSV files
+with a spec, as a user would have them.
+"""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cvxid import CvxidError
+from cvxid.app.run import run
+from cvxid.identified import IdentifiedModel
+from cvxid.model.terms import parse_term
+from cvxid.simulate import System, simulate
+
+TERMS = ("x'", "x", "x^3")
+TRUTH = {"m": 1.0, "x'": 0.4, "x": 4.0, "x^3": 0.5}
+TAU_U = 0.05
+
+
+def write(folder, tau_u=TAU_U, seed=0, noise=0.01, model="", diagnose=False, dt=0.01, duration=60.0, test=15.0):
+    """Train and test CSV files and a spec reading them; ``model``: extra [model] lines."""
+    rng = np.random.default_rng(seed)
+    freqs = np.linspace(0.3, 3.0, 8) * 2 * np.pi
+    phases = rng.uniform(0, 2 * np.pi, freqs.size)
+
+    def u(s):
+        return 1.5 * np.sin(np.multiply.outer(s, freqs) + phases).sum(axis=-1) / np.sqrt(freqs.size)
+
+    system = System(tuple(parse_term(n) for n in TERMS), np.array([TRUTH[n] for n in TERMS]), 1.0, "x")
+    t = np.arange(int(round((duration + test) / dt)) + 1) * dt
+    x, _ = simulate(system, t, lambda s: u(s - tau_u), 0.3, -0.2)
+    y, f = x + noise * rng.standard_normal(t.size), u(t) + noise * rng.standard_normal(t.size)
+    cut = int(round(duration / dt))
+    for name, part in (("train", slice(0, cut)), ("test", slice(cut, None))):
+        np.savetxt(folder / f"{name}.csv", np.column_stack([t[part], y[part], f[part]]), delimiter=",",
+                   header="t,x,f", comments="", fmt="%.10g")
+    data = "".join(f'[data.{n}]\nfile = "{n}.csv"\noutput = "x"\ninput = "f"\n' for n in ("train", "test"))
+    spec = (f'name = "input_delay"\n{data}[model]\n{model}\n[model.library]\nterms = ["x\'", "x", "x^3"]\n'
+            '[fit]\nestimator = "lstsq"\nrefine = "output_error"\n' + ("[diagnose]\nrefine = true\n" if diagnose else ""))
+    (folder / "spec.toml").write_text(spec)
+    return folder / "spec.toml"
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_an_input_delay_is_estimated_with_an_interval_that_covers_it(tmp_path, seed):
+    result = run(write(tmp_path, seed=seed, model="input_delay = {}"))
+    estimate, (low, high) = result.input_delay["estimate"], result.input_delay["interval"]
+    assert estimate == pytest.approx(TAU_U, rel=0.04)  # measured: within 2 % on seeds 0-2 and 10-15
+    assert low < TAU_U < high and high - low < 0.2 * TAU_U
+    physical = result.model.physical
+    for name in ("m", "x'", "x"):
+        assert physical[name] == pytest.approx(TRUTH[name], rel=0.02)
+    assert result.model.equation().endswith(f"= f(t - {estimate:.6g})")
+    assert result.to_dict()["input_delay"]["method"] == "output_error"
+
+
+def test_without_an_input_delay_the_estimate_stays_within_a_sample_of_zero(tmp_path):
+    result = run(write(tmp_path, tau_u=0.0, seed=12, model="input_delay = {}"))
+    assert result.input_delay["estimate"] < 0.005  # half a sample
+    assert result.input_delay["interval"][0] == 0.0
+
+
+def test_a_missing_input_delay_is_ranked_first_and_added(tmp_path):
+    without = run(write(tmp_path, seed=11, noise=0.002, diagnose=True))
+    ranking = without.diagnosis.ranking
+    assert ranking.index[0] == "input_delay" and ranking["err"].iloc[0] > 0.5
+    assert [s.added for s in without.refinement.steps] == ["input_delay"]
+    step = without.refinement.steps[0]
+    assert step.fit_after > step.fit_before and step.test_mse_after < step.test_mse_before / 4
+    assert without.model.spec.input_tau == pytest.approx(TAU_U, rel=0.03)
+
+
+def test_the_model_file_keeps_the_input_delay_and_simulates_alike(tmp_path):
+    result = run(write(tmp_path, seed=2, model="input_delay = 0.05"))
+    assert result.model.physical["tau_u"] == 0.05 and result.input_delay is None  # known: not estimated
+    result.model.save(tmp_path / "model.json")
+    loaded = IdentifiedModel.load(tmp_path / "model.json")
+    assert loaded.spec.input_delay == result.model.spec.input_delay
+    np.testing.assert_allclose(loaded.simulate(result.test)[0], result.model.simulate(result.test)[0], rtol=1e-12)
+    assert json.loads((tmp_path / "model.json").read_text())["equations"]["x"]["model"]["input_delay"]["value"] == 0.05
+
+
+def test_the_linearisation_delays_the_input_by_its_pade_approximation(tmp_path):
+    result = run(write(tmp_path, seed=3, model="input_delay = 0.05"))
+    lagged = result.model.linearized_tf()
+    plain = IdentifiedModel(replace(result.model.spec, input_delay=None), result.model.coefficients).linearized_tf()
+    w = np.array([1.0, 5.0, 20.0])
+    ratio = lagged(1j * w) / plain(1j * w)
+    np.testing.assert_allclose(np.abs(ratio), 1.0, atol=1e-6)
+    np.testing.assert_allclose(np.angle(ratio), -w * 0.05, atol=1e-6)
+    system = result.model.to_control()
+    assert system.nstates == 2 + 6  # x, x' and the input delay's Padé states
+
+
+@pytest.mark.parametrize("line, message", [
+    ("input_delay = -0.1", "input_delay = -0.1 is out of range"),
+    ("input_delay = { tau_min = 0.1, tau_max = 0.05 }", "needs tau_min < tau_max"),
+    ("input_delay = { max = 0.1 }", "max"),
+    ('input_delay = "auto"', "must be a number"),
+])
+def test_a_bad_input_delay_is_named(tmp_path, line, message):
+    with pytest.raises(CvxidError, match=message):
+        run(write(tmp_path, model=line))
