@@ -25,6 +25,9 @@ The draw (all uniform unless said):
   ``tau`` in :data:`TAU_RANGE`;
 * the hidden effect (``coulomb``, ``quadratic_damping``, ``quadratic_stiffness``,
   ``offset`` or none): a force of :data:`EFFECT_SHARE` of the force scale ``k1 x_rms``;
+  or ``input_delay``: the system receives ``f(t - tau_u)``, ``tau_u`` in
+  :data:`INPUT_DELAY_RANGE` (drawn from its own stream, so the rest of the draw is the
+  seed's whatever the effect);
 * each record's forcing: a multisine (3–6 sines, frequencies log-uniform over
   :data:`BAND` times ``sqrt(k1/m)``, random phases and weights) or a linear chirp over that
   band (cvxid's ``quadratic_chirp``, shifted in time), scaled so that the standard
@@ -45,7 +48,8 @@ depend on the effect, noise or length asked for, except through that rejection.
 The spec (mode ``"structure"``): the true terms as the library, the exact delay on x with
 the documented default range ``[tau_min, tau_max] = [0, 0.5]`` (it contains
 :data:`TAU_RANGE`), the gain estimated (given with ``known_gain``), ``x'' >= 0``, the
-output-error polish, everything else the documented defaults.  Mode ``"diagnosis"``
+output-error polish, an input delay to estimate with its default bound when the system has
+one, everything else the documented defaults.  Mode ``"diagnosis"``
 starts from ``x, x', x^3`` without the hidden term and adds ``[diagnose] refine = true``.
 """
 
@@ -72,7 +76,9 @@ from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged, System, simulate
 
 TAU_RANGE = (0.05, 0.3)
-EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset")
+EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset", "input_delay")
+INPUT_DELAY_RANGE = (0.01, 0.05)
+"""The input's delay ``tau_u`` (seconds) of the ``input_delay`` effect."""
 EFFECT_SHARE = (0.1, 0.3)
 """The hidden effect's force as a share of the force scale ``k1 x_rms``."""
 NOISES = (0.001, 0.01, 0.02)
@@ -125,6 +131,7 @@ class Oscillator:
     train: Forcing
     test: Forcing
     attempt: int
+    input_tau: float = 0.0  # the input's delay (the input_delay effect)
 
     @property
     def terms(self) -> list[str]:
@@ -132,8 +139,10 @@ class Oscillator:
 
     @property
     def truth(self) -> dict[str, float]:
-        """Physical parameters as a run names them (``m``, term names, ``tau``, ``gain``)."""
-        return {"m": self.mass, **dict(self.coefficients), "tau": self.tau, "gain": self.gain}
+        """Physical parameters as a run names them (``m``, term names, ``tau``, ``gain``,
+        ``tau_u`` for a late input)."""
+        late = {"tau_u": self.input_tau} if self.input_tau else {}
+        return {"m": self.mass, **dict(self.coefficients), "tau": self.tau, "gain": self.gain, **late}
 
     @property
     def system(self) -> System:
@@ -143,7 +152,7 @@ class Oscillator:
         """Noise-free time (from 0), x, x' and f of the ``"train"`` or ``"test"`` record."""
         forcing = self.train if which == "train" else self.test
         length = self.duration if which == "train" else min(self.duration, TEST_DURATION)
-        return _record(self.system, forcing, length)
+        return _record(self.system, forcing, length, self.input_tau)
 
     def experiment(self, which: str) -> Experiment:
         """The measured record: x and f with white noise (seeded by the seed, attempt and record)."""
@@ -158,11 +167,12 @@ def _system(mass: float, coefficients: tuple[tuple[str, float], ...], gain: floa
                   gain=gain, tau=tau)
 
 
-def _record(system: System, forcing: Forcing, duration: float):
+def _record(system: System, forcing: Forcing, duration: float, input_tau: float = 0.0):
+    """Time from 0, x, x' and the forcing as recorded; the system receives it ``input_tau`` late."""
     skip = round(forcing.pre / DT)
     n = skip + round(duration / DT) + 1
     t = (np.arange(n) - skip) * DT
-    x, v = simulate(system, t, forcing, 0.0, 0.0, substeps=SUBSTEPS)
+    x, v = simulate(system, t, lambda s: forcing(s - input_tau), 0.0, 0.0, substeps=SUBSTEPS)
     return np.arange(n - skip) * DT, x[skip:], v[skip:], forcing(t[skip:])
 
 
@@ -194,7 +204,9 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
     duration = float(drawn_duration if duration is None else duration)
     omega = np.sqrt(k1 / mass)
     coefficients = {"x'": c, "x": k1, "x^3": k3}
-    if effect != "none":
+    input_tau = float(np.random.default_rng([seed, attempt, 3]).uniform(*INPUT_DELAY_RANGE)) \
+        if effect == "input_delay" else 0.0
+    if effect not in ("none", "input_delay"):
         force, speed = share * k1 * target, omega * target
         size = {"coulomb": force, "quadratic_damping": force / speed**2, "quadratic_stiffness": sign * force / target**2,
                 "offset": sign * force}[effect]
@@ -205,12 +217,12 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
         return None
     forcings = []
     for length in (duration, min(duration, TEST_DURATION)):
-        forcing = _scaled(system, _forcing(rng, omega, length), length, target, k1 * target)
+        forcing = _scaled(system, _forcing(rng, omega, length), length, target, k1 * target, input_tau)
         if forcing is None:
             return None
         forcings.append(forcing)
     return Oscillator(seed, effect, float(mass), coefficients, float(gain), float(tau), noise, duration, *forcings,
-                      attempt)
+                      attempt, input_tau)
 
 
 def _decays(system: System, amplitude: float) -> bool:
@@ -240,7 +252,8 @@ def _forcing(rng: np.random.Generator, omega: float, duration: float) -> Forcing
     return Forcing("chirp", ({"kind": "quadratic_chirp", "amplitude": 1.0, "rate": rate},), pre + lo / (2 * rate), pre)
 
 
-def _scaled(system: System, forcing: Forcing, duration: float, target: float, force: float) -> Forcing | None:
+def _scaled(system: System, forcing: Forcing, duration: float, target: float, force: float,
+            input_tau: float = 0.0) -> Forcing | None:
     """``forcing`` scaled to a standard deviation of x within :data:`TOLERANCE` of
     ``target``: from an RMS of ``force``, then by the ratio of standard deviations, or by
     bisection once the target is bracketed (friction makes the response jump).  None when
@@ -250,7 +263,7 @@ def _scaled(system: System, forcing: Forcing, duration: float, target: float, fo
     scale, low, high = force / np.std(forcing(t)), 0.0, np.inf
     for _ in range(SCALINGS):
         try:
-            x = _record(system, forcing.scaled(scale), duration)[1]
+            x = _record(system, forcing.scaled(scale), duration, input_tau)[1]
             ratio = target / max(float(np.std(x)), 1e-12)
         except SimulationDiverged:
             ratio = 0.0  # far too strong
@@ -289,6 +302,7 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
         "model.library": {"terms": terms},
         "model.delay": delay,
         "model.constraints": {"nonnegative": ["x''"]},
+        **({"model.input_delay": {}} if o.input_tau and mode == "structure" else {}),
         "fit": {"refine": "output_error"},
         **({"diagnose": {"refine": True}} if mode == "diagnosis" else {}),
     }
@@ -315,7 +329,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 
 # ---------------------------------------------------------------------- runs
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
-TRAILING = ["worst other %", "seconds", "status", "error"]
+TRAILING = ["worst other %", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added"]
 
 
@@ -327,10 +341,15 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
     """The errors of one run's ``result.json`` content against the truth (a parameter the
     model lacks counts as 0)."""
     tau = result["tau"] or {}
-    truth = {k: v for k, v in oscillator.truth.items() if k != "tau" and not (k == "gain" and known_gain)}
+    truth = {k: v for k, v in oscillator.truth.items() if k not in ("tau", "tau_u") and not (k == "gain" and known_gain)}
     errors = {f"err % {k}": _error(result["physical"].get(k, 0.0), v) for k, v in truth.items()}
     interval = tau.get("interval")
     diagnosis = result.get("diagnosis") or {}
+    late = {}
+    if oscillator.input_tau:  # a model without an input delay has tau_u = 0: error -100 %
+        bounds = (result.get("input_delay") or {}).get("interval")
+        late = {"tau_u error %": _error(result["physical"].get("tau_u", 0.0), oscillator.input_tau),
+                "tau_u covers": bool(bounds[0] <= oscillator.input_tau <= bounds[1]) if bounds else None}
     return {
         "tau": tau.get("estimate", np.nan),
         "tau error %": _error(tau.get("estimate", np.nan), oscillator.tau),
@@ -339,6 +358,7 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
         "covers": bool(interval[0] <= oscillator.tau <= interval[1]) if interval else None,
         **errors,
         "worst other %": max(abs(v) for v in errors.values()),
+        **late,
         "seconds": result["seconds"],
         "first effect": (diagnosis.get("ranking") or [{}])[0].get("effect"),
         "added": ",".join(step["added"] for step in result.get("refinement") or []),
@@ -391,10 +411,14 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
 
 def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
     """Per group: systems, failures, median and 90th percentile of |tau error| %, median
-    worst other %, the share of tau intervals that cover the truth (%) and median seconds."""
+    worst other %, the share of tau intervals that cover the truth (%), for a late input
+    the median |tau_u error| % and its intervals' coverage, and median seconds."""
     frame = frame.assign(failed=frame["status"] != "ok", abs_tau=frame["tau error %"].abs(),
-                         covered=frame["covers"].astype(float))
+                         covered=frame["covers"].astype(float), abs_tau_u=frame["tau_u error %"].abs(),
+                         covered_u=frame["tau_u covers"].astype(float))
     ok = frame[~frame["failed"]].groupby(list(by), sort=False)
+    late = {"|tau_u err| % median": ok["abs_tau_u"].median(), "tau_u covers %": 100 * ok["covered_u"].mean()} \
+        if frame["abs_tau_u"].notna().any() else {}
     return pd.DataFrame({
         "systems": frame.groupby(list(by), sort=False).size(),
         "failures": frame.groupby(list(by), sort=False)["failed"].sum(),
@@ -402,6 +426,7 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
         "|tau err| % p90": ok["abs_tau"].quantile(0.9),
         "worst other % median": ok["worst other %"].median(),
         "covers %": 100 * ok["covered"].mean(),
+        **late,
         "seconds median": ok["seconds"].median(),
     })
 
