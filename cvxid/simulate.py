@@ -45,7 +45,7 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 from scipy.interpolate import CubicSpline
 
 from cvxid.errors import CvxidError
@@ -474,18 +474,19 @@ def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws
         out[e] /= mass[e, b]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", parallel=True)
 def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
-    """RK4 with a Hermite history of the delayed coordinate, one variant of the batch at a
-    time (compiled).  ``terms``: the codes of :func:`_term_codes`."""
+    """RK4 with a Hermite history of the delayed coordinate, the variants of the batch in
+    parallel threads (compiled; a Jacobian's columns are one batch).  ``terms``: the codes
+    of :func:`_term_codes`."""
     C, B = x0.shape
     X = np.zeros((steps + 1, C, B))
     V = np.zeros((steps + 1, C, B))
     A = np.zeros((steps + 1, C, B))
-    a1, a2, a3, a4 = np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
-    stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
-    failed = -1
-    for b in range(B):
+    failures = np.full(B, -1)
+    for b in prange(B):
+        a1, a2, a3, a4 = np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
+        stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
         x, v = x0[:, b].copy(), v0[:, b].copy()
         X[0, :, b], V[0, :, b] = x, v
         for k in range(steps):
@@ -505,9 +506,12 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, 
             v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
             X[k + 1, :, b], V[k + 1, :, b] = x, v
             if not (np.abs(x).max() < 1e8 and np.abs(v).max() < 1e8):
-                if failed < 0 or k + 1 < failed:
-                    failed = k + 1
+                failures[b] = k + 1
                 break
+    failed = -1
+    for b in range(B):
+        if failures[b] >= 0 and (failed < 0 or failures[b] < failed):
+            failed = failures[b]
     return X, V, failed
 
 

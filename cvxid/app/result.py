@@ -57,6 +57,7 @@ class RunResult:
     window: Windows | None = None  # the algebraic operation's windows (None: the whole record)
     test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
+    simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
 
     @property
     def coupled(self) -> bool:
@@ -165,6 +166,11 @@ class RunResult:
                 "groups": self.diagnosis.groups,
             },
             "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
+            "simulation_diagnosis": None if self.simulation_refinement is None else {
+                "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
+                if self.simulation_refinement.rankings else [],
+                "steps": [s.as_dict() for s in self.simulation_refinement.steps],
+            },
             "stepwise": None if self.stepwise is None else {
                 "history": self.stepwise.history.to_dict(orient="records"),
                 "noise": self.stepwise.noise,
@@ -240,7 +246,7 @@ class RunResult:
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
         ]
-        for part in (self.order_search, self.stepwise, self.diagnosis, self.refinement):
+        for part in (self.order_search, self.stepwise, self.diagnosis, self.refinement, self.simulation_refinement):
             if part is not None:
                 lines += [repr(part), ""]
         return "\n".join(lines + self._footer())

@@ -24,6 +24,7 @@ import pandas as pd
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.coupled import refine_joint
+from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.diagnosis.equation import (
     compare,
     diagnose,
@@ -348,11 +349,17 @@ is long and every coordinate is simulated; measured on the flexible joint)."""
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
-    profile's."""
+    profile's.  With ``[diagnose] refine`` and a test record (one equation), then the
+    diagnosis by simulation error (:mod:`cvxid.diagnosis.simulation`)."""
     if out.coupled:
         out.polish = polish(out.system, out.train, **COUPLED_POLISH)
     else:
         out.polish = polish(out.system, out.train)
+    settings = out.spec.diagnose
+    if settings is not None and settings.refine and out.test is not None and not out.coupled:
+        out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
+                                                         settings.max_steps)
+        out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
     if "tau" in out.polish.parameters:
         out.tau = {"estimate": out.polish.parameters["tau"], "interval": list(out.polish.interval("tau")),

@@ -319,6 +319,31 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
                         effective_rows=n_eff, states=frozenset(problem.state_names))
 
 
+def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
+                  step: float | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """The simulation residual at ``fitted``'s own parameters and its forward-difference
+    Jacobian, with the parameters' names (as :func:`output_error` names them): one batch
+    of simulations.  ``step``: the simulation step (the sample step by default)."""
+    problem = _problem_at(fitted, experiments, initial, step)
+    theta = problem.start
+    h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
+    r = problem.residuals(np.vstack([theta, theta + np.diag(h)]))
+    return problem.names, r[:, 0], (r[:, 1:] - r[:, :1]) / h
+
+
+def residual(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
+             step: float | None = None) -> np.ndarray:
+    """The simulation residual of :func:`linearisation` alone (one simulation)."""
+    problem = _problem_at(fitted, experiments, initial, step)
+    return problem.residuals(problem.start[None, :])[:, 0]
+
+
+def _problem_at(fitted, experiments, initial, step) -> "_Problem":
+    system = _system(fitted)
+    experiments = _experiments(experiments, _shortest(system))
+    return _Problem(system, experiments, step or experiments[0].dt, initial)
+
+
 class _Problem:
     """Parameters ↔ simulations of the system for :func:`output_error`."""
 
