@@ -474,6 +474,16 @@ def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws
         out[e] /= mass[e, b]
 
 
+@njit(cache=True)
+def _diverged(x, v) -> bool:
+    """A state beyond :data:`DIVERGED` or not finite (NaN compares false: scalar tests, as a
+    parallel reduction would drop it)."""
+    for c in range(x.size):
+        if not (abs(x[c]) < DIVERGED and abs(v[c]) < DIVERGED):
+            return True
+    return False
+
+
 @njit(cache=True, error_model="numpy", parallel=True)
 def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
     """RK4 with a Hermite history of the delayed coordinate, the variants of the batch in
@@ -505,7 +515,7 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, 
             x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
             v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
             X[k + 1, :, b], V[k + 1, :, b] = x, v
-            if not (np.abs(x).max() < 1e8 and np.abs(v).max() < 1e8):
+            if _diverged(x, v):
                 failures[b] = k + 1
                 break
     failed = -1

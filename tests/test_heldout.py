@@ -12,8 +12,10 @@ from cvxid.tools.heldout import (
     EFFECTS,
     NOISES,
     TAU_RANGE,
+    INPUT_DELAY_RANGE,
     X_RMS,
     by_duration,
+    confusion,
     draw,
     heldout,
     summary,
@@ -44,8 +46,10 @@ def test_drawn_parameters_lie_in_the_stated_ranges(effect):
         assert 0.3 * k["x"] <= abs(o.gain) <= 0.5 * k["x"]
         assert TAU_RANGE[0] <= o.tau <= TAU_RANGE[1]
         assert o.noise in NOISES
-        assert (EFFECT_TERMS.get(effect) in k) == (effect != "none")
-        assert len(o.coefficients) == 2 + ("x^3" in k) + (effect != "none")
+        term = effect not in ("none", "input_delay")  # a late input adds no term
+        assert (EFFECT_TERMS.get(effect) in k) == term
+        assert len(o.coefficients) == 2 + ("x^3" in k) + term
+        assert (INPUT_DELAY_RANGE[0] <= o.input_tau <= INPUT_DELAY_RANGE[1]) == (effect == "input_delay")
         assert o.train.kind in ("multisine", "chirp")
     o = draw(0, effect, duration=8.0)
     x = o.simulate("train")[1]
@@ -135,3 +139,29 @@ def test_short_quiet_records_give_tau():
     frame = heldout([1, 4], ["none"], [0.001], duration=10.0, n_jobs=2)
     assert (frame["status"] == "ok").all(), frame["error"].tolist()
     assert frame["tau error %"].abs().max() < TAU_TOLERANCE, frame["tau error %"].tolist()
+
+
+def test_a_late_input_is_drawn_from_its_own_stream_and_written_into_the_spec(tmp_path):
+    late, plain = draw(5, "input_delay", noise=0.01, duration=6.0), draw(5, "none", noise=0.01, duration=6.0)
+    assert INPUT_DELAY_RANGE[0] <= late.input_tau <= INPUT_DELAY_RANGE[1] and plain.input_tau == 0.0
+    assert (late.mass, late.coefficients, late.tau) == (plain.mass, plain.coefficients, plain.tau)
+    assert late.truth["tau_u"] == late.input_tau and "tau_u" not in plain.truth
+    _, x, _, f = late.simulate("train")
+    _, x_plain, _, f_plain = plain.simulate("train")
+    assert np.allclose(f / np.std(f), f_plain / np.std(f_plain))  # the same forcing, scaled to the same x RMS
+    assert not np.allclose(x / np.std(x), x_plain / np.std(x_plain), atol=1e-3)  # received late
+    spec = load_problem(write(late, tmp_path / "structure"))
+    assert spec.model.input_delay.free and spec.model.input_delay.tau_min == 0.0
+    assert load_problem(write(late, tmp_path / "diagnosis", mode="diagnosis")).model.input_delay is None
+
+
+def test_the_confusion_table_counts_right_and_wrong_additions():
+    frame = pd.DataFrame({
+        "effect": ["coulomb", "coulomb", "none", "none"], "status": "ok",
+        "first effect": ["coulomb", "offset", "offset", "offset"],
+        "added": ["coulomb", "", "offset", ""], "added by simulation": ["", "coulomb,offset", "", ""],
+    })
+    table = confusion(frame)
+    assert table.loc["coulomb", "ranked first %"] == 50 and table.loc["coulomb", "added %"] == 100
+    assert table.loc["coulomb", "added by simulation %"] == 50 and table.loc["coulomb", "wrong addition %"] == 50
+    assert table.loc["none", "wrong addition %"] == 50 and table.loc["none", "most often first"] == "offset"

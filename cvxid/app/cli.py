@@ -136,7 +136,7 @@ def _heldout(args) -> int:
     import pandas as pd
 
     from cvxid.app.report import plain
-    from cvxid.tools.heldout import EFFECTS, by_duration, heldout, summary
+    from cvxid.tools.heldout import EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
         raise CvxidError("--heldout draws its own systems: give no SPEC")
@@ -153,6 +153,9 @@ def _heldout(args) -> int:
     print(f"cvxid bench --heldout: seeds {args.seeds or '1000:1010'}, {args.mode} mode, "
           f"{len(frame)} systems in {wall:.0f} s ({args.jobs} jobs)")
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
+    if args.mode == "diagnosis":
+        print()
+        print(confusion(frame).to_string(float_format=lambda v: f"{v:.3g}"))
     if args.systems:
         print()
         print(frame.drop(columns=["error"]).to_string(float_format=lambda v: f"{v:.4g}"))

@@ -330,7 +330,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 # ---------------------------------------------------------------------- runs
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
 TRAILING = ["worst other %", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
-DIAGNOSIS = ["first effect", "added"]
+DIAGNOSIS = ["first effect", "added", "added by simulation"]
 
 
 def _error(estimate: float, truth: float) -> float:
@@ -362,6 +362,8 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
         "seconds": result["seconds"],
         "first effect": (diagnosis.get("ranking") or [{}])[0].get("effect"),
         "added": ",".join(step["added"] for step in result.get("refinement") or []),
+        "added by simulation": ",".join(step["added"] for step in (result.get("simulation_diagnosis") or {})
+                                        .get("steps", []) if step["kept"]),
     }
 
 
@@ -429,6 +431,29 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
         **late,
         "seconds median": ok["seconds"].median(),
     })
+
+
+def confusion(frame: pd.DataFrame) -> pd.DataFrame:
+    """Diagnosis mode, per hidden effect: how often the equation-error diagnosis ranked it
+    first, how often it was added (by either stage, and by the simulation stage alone), how
+    often another effect was added (a wrong addition), and which effect was ranked first
+    most often in its place.  The control (``none``) can only have wrong additions."""
+    ok = frame[frame["status"] == "ok"]
+    rows = {}
+    for effect, group in ok.groupby("effect", sort=False):
+        added = [set(filter(None, f"{a},{s}".split(","))) for a, s in
+                 zip(group["added"].fillna(""), group["added by simulation"].fillna(""))]
+        by_simulation = [effect in set(filter(None, s.split(","))) for s in group["added by simulation"].fillna("")]
+        wrong = [bool(a - {effect}) for a in added]
+        rows[effect] = {
+            "systems": len(group),
+            "ranked first %": 100 * float((group["first effect"] == effect).mean()),
+            "added %": 100 * float(np.mean([effect in a for a in added])),
+            "added by simulation %": 100 * float(np.mean(by_simulation)),
+            "wrong addition %": 100 * float(np.mean(wrong)),
+            "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
+        }
+    return pd.DataFrame.from_dict(rows, orient="index").rename_axis("hidden effect")
 
 
 def by_duration(frame: pd.DataFrame) -> pd.DataFrame:
