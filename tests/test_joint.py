@@ -271,3 +271,24 @@ def test_coupled_selection_without_test_data_may_drop_terms():
     assert min(len(m.spec.library) for m in result.system.models.values()) < 5  # the path dropped terms
     coefficients = result.system.coefficients
     assert coefficients["alpha:alpha''"] == pytest.approx(coefficients["theta:theta''"], rel=1e-9)
+
+
+def test_a_coupled_spec_declares_its_own_effect_and_the_diagnosis_adds_it():
+    """[diagnose.effects] in a coupled spec: the rig's hidden motor-side friction written as
+    the user's own effect (a smooth sign, as a user might) is the only candidate, ranked and
+    added to both equations; 30 s of training, equation error only."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 30.0
+    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    raw["diagnose"] = {"refine": True, "candidates": ["motor_friction"],
+                       "effects": {"motor_friction": {"term": "tanh(200 theta')", "meaning": "the motor's dry friction"}}}
+    spec = parse_problem(raw, SPEC.parent)
+    assert all("motor_friction" in s.effects for s in spec.system.equations.values())
+    result = run(spec)
+    steps = result.refinement.steps
+    assert [s["added"] for s in steps] == ["motor_friction"]
+    assert steps[0]["simulation_error_after"] < 0.5 * steps[0]["simulation_error_before"]
+    assert {"theta:tanh(200 * theta')", "alpha:tanh(200 * theta')"} <= set(result.system.coefficients)
+    with pytest.raises(CvxidError, match="unknown term or effect 'motor'"):
+        raw["diagnose"]["candidates"] = ["motor"]
+        parse_problem(raw, SPEC.parent)

@@ -36,12 +36,16 @@ from cvxid.regression.builder import SystemBuilder
 
 def candidate_terms(specs: dict[str, ModelSpec], candidates: Sequence[str] | None = None) -> dict[str, Term]:
     """Candidate name → term: each catalogue effect for each coordinate (``"coulomb(theta)"``),
+    the spec's declared effects (``[diagnose.effects]``: terms of the coordinates already),
     or the user's effect and term names; terms every equation already has are left out."""
     coords = tuple(s.coordinate for s in specs.values())
-    names = [n for n in CATALOGUE if n not in PARAMETERS] if candidates is None else list(candidates)
+    declared = next(iter(specs.values())).effects
+    names = [n for n in (*CATALOGUE, *declared) if n not in PARAMETERS] if candidates is None else list(candidates)
     out = {}
     for name in names:
-        if name in CATALOGUE:
+        if name in declared:
+            built = {name: declared[name].build(coords[0])}
+        elif name in CATALOGUE:
             built = {f"{name}({c})": CATALOGUE[name].build(c) for c in coords}
         else:
             built = {name: resolve_term(name, coords)}

@@ -29,6 +29,7 @@ from cvxid.spec.problem import (
     Truth,
     _bool,
     _fit,
+    declared_effects,
     _model,
     _number,
     _string,
@@ -71,10 +72,12 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         raise CvxidError("spec: simulated data needs a [truth] section with [[truth.equation]] tables")
     diagnose = None
     if "diagnose" in raw:
-        d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps"})
+        d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects"})
+        effects = declared_effects(raw, next(iter(equations.values())))  # terms of every coordinate
+        equations = {label: replace(s, effects=effects) for label, s in equations.items()}
         candidates = tuple(_strings(d, "candidates", "diagnose")) if "candidates" in d else None
         for c in candidates or ():
-            resolve_term(c, tuple(equations))  # unknown names fail here, with the catalogue
+            resolve_term(c, tuple(equations), effects)  # unknown names fail here, with the catalogue
         diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
                                     _number(d, "min_improvement", "diagnose", 0.2, positive=True),
                                     _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
