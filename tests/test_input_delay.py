@@ -106,3 +106,19 @@ def test_the_linearisation_delays_the_input_by_its_pade_approximation(tmp_path):
 def test_a_bad_input_delay_is_named(tmp_path, line, message):
     with pytest.raises(CvxidError, match=message):
         run(write(tmp_path, model=line))
+
+
+def test_a_simulated_truth_with_a_late_input_is_identified_from_the_spec_alone(tmp_path):
+    sim = ('duration = {d}\ndt = 0.01\nx0 = 0.3\nseed = {s}\nnoise = {{ output = 0.01, input = 0.01 }}\n'
+           'input = [{{ kind = "sine", amplitude = 3.0, omega = 1.3 }}, {{ kind = "sine", amplitude = 2.0, omega = 3.7 }},'
+           ' {{ kind = "sine", amplitude = 1.0, omega = 7.9 }}]\n')
+    spec = tmp_path / "late.toml"
+    spec.write_text(
+        'name = "late"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.4, "x" = 4.0, "x^3" = 0.5 }\ninput_delay = 0.04\n'
+        f'[data.train.simulate]\n{sim.format(d=40.0, s=1)}[data.test.simulate]\n{sim.format(d=10.0, s=2)}'
+        '[model]\ninput_delay = {}\n[model.library]\nterms = ["x\'", "x", "x^3"]\n'
+        '[fit]\nestimator = "lstsq"\nrefine = "output_error"\n')
+    result = run(spec)
+    assert result.spec.truth.physical["tau_u"] == 0.04
+    table = result.table()
+    assert abs(table.loc["tau_u", "error %"]) < 3 and abs(table.loc["x", "error %"]) < 2

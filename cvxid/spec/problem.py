@@ -123,6 +123,7 @@ class Truth:
     system: CoupledSystem
     input: str
     physical: dict[str, float]
+    input_delay: float = 0.0  # the system receives the input this late (single-equation truths)
 
 
 @dataclass(frozen=True)
@@ -551,7 +552,7 @@ def _orders(table: Table) -> tuple[int, ...]:
 
 def _truth(raw: Table, model: ModelSpec) -> Truth:
     where = "truth"
-    t = _table(raw, "truth", "", {"mass", "coefficients", "delay", "history"})
+    t = _table(raw, "truth", "", {"mass", "coefficients", "delay", "history", "input_delay"})
     coord = model.coordinate
     coefs_t = t.get("coefficients", {})
     if not isinstance(coefs_t, Mapping):
@@ -580,7 +581,10 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         physical[pname] = sign * value
     if "delay" in t:
         physical["tau"] = tau
-    return Truth(system, model.input, physical)
+    input_delay = _number(t, "input_delay", where, 0.0, within=(0, 10.0), fix="the input's delay in seconds")
+    if input_delay:
+        physical["tau_u"] = input_delay
+    return Truth(system, model.input, physical, input_delay)
 
 
 # ---------------------------------------------------------------------- experiments
@@ -607,8 +611,9 @@ def _simulated(spec: ProblemSpec, which: str, sim: Table) -> Experiment:
     where = f"data.{which}.simulate"
     t, force, sx, sf, rng = simulation_setup(sim, where)
     coords = spec.coordinates
-    x, v = simulate_coupled(spec.truth.system, t, force, _per_coordinate(sim, "x0", where, coords),
-                            _per_coordinate(sim, "v0", where, coords))
+    late = spec.truth.input_delay
+    x, v = simulate_coupled(spec.truth.system, t, (lambda s: force(s - late)) if late else force,
+                            _per_coordinate(sim, "x0", where, coords), _per_coordinate(sim, "v0", where, coords))
     outputs = {c: x[c] + sx * rng.standard_normal(t.size) for c in coords}
     # the simulator's true velocities travel along, for velocity = "measured"
     return Experiment(t, outputs, {spec.truth.input: force(t) + sf * rng.standard_normal(t.size)}, name=which,
