@@ -100,7 +100,9 @@ def test_the_linearisation_delays_the_input_by_its_pade_approximation(tmp_path):
 @pytest.mark.parametrize("line, message", [
     ("input_delay = -0.1", "input_delay = -0.1 is out of range"),
     ("input_delay = { tau_min = 0.1, tau_max = 0.05 }", "needs tau_min < tau_max"),
-    ("input_delay = { max = 0.1 }", "max"),
+    ("input_delay = { max = 0.1 }", "unknown key"),
+    ("input_delay = 9.0", "input_delay = 9 s is more than half the shortest record"),
+    ("input_delay = { tau_min = 5.0 }", "tau_min = 5 s is at or above the default tau_max"),
     ('input_delay = "auto"', "must be a number"),
 ])
 def test_a_bad_input_delay_is_named(tmp_path, line, message):
@@ -122,3 +124,22 @@ def test_a_simulated_truth_with_a_late_input_is_identified_from_the_spec_alone(t
     assert result.spec.truth.physical["tau_u"] == 0.04
     table = result.table()
     assert abs(table.loc["tau_u", "error %"]) < 3 and abs(table.loc["x", "error %"]) < 2
+
+
+def test_the_reported_input_delay_is_the_models_after_the_refinement(tmp_path):
+    """The diagnosis refits with the input delay profiled again: the report follows it."""
+    spec = write(tmp_path, seed=4, model="input_delay = {}")
+    text = spec.read_text().replace('terms = ["x\'", "x", "x^3"]', 'terms = ["x\'", "x^3"]')
+    spec.write_text(text + "[diagnose]\nrefine = true\nsimulation = false\ncandidates = [\"linear_stiffness\"]\n")
+    result = run(spec)
+    assert [s.added for s in result.refinement.steps] == ["linear_stiffness"]
+    assert result.input_delay["estimate"] == result.model.spec.input_tau == result.model.physical["tau_u"]
+    assert result.input_delay["estimate"] == pytest.approx(TAU_U, rel=0.05)
+    assert result.simulation_refinement is None  # switched off
+
+
+def test_a_known_input_delay_is_kept_by_the_diagnosis(tmp_path):
+    spec = write(tmp_path, seed=5, model="input_delay = 0.05", diagnose=True)
+    result = run(spec)
+    assert result.model.spec.input_delay.value == 0.05 and not result.model.spec.input_delay.free
+    assert "input_delay" not in result.diagnosis.ranking.index

@@ -102,6 +102,8 @@ def _raw():
     (lambda r: r["truth"]["equation"][1].update(input="v"), "must share one input"),
     (lambda r: r["model"]["equation"][0]["library"].update(terms=["theta'", "gamma"]), "gamma"),
     (lambda r: r["fit"].update(estimator="magic"), "estimator"),
+    (lambda r: r["model"]["equation"][0].update(input_delay=0.1), "an input delay is for one equation ([model]) only"),
+    (lambda r: r["diagnose"].update(candidates=["input_delay"]), "'input_delay' is estimated again in one-equation"),
 ])
 def test_bad_coupled_specs_are_named(edit, message):
     raw = _raw()

@@ -185,6 +185,7 @@ def _identify(spec) -> RunResult:
     if fit.orders:
         system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
     system = _bounded_input_delay(system, train)
+    _check_input_delay(system, [train] + ([test] if test else []))
     rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
     test_rows = SystemBuilder(system.equations, test, velocity, _test_window(fit.window, rows.window, system, test),
                               fit.allow_large) if test else None
@@ -278,6 +279,22 @@ def _bounded_input_delay(system: SystemSpec, train: Experiment) -> SystemSpec:
                                       if s.input_delay is not None else s for label, s in system.equations.items()})
 
 
+def _check_input_delay(system: SystemSpec, experiments: list[Experiment]) -> None:
+    """An input delay longer than half the shortest record leaves most of it driven by the
+    held first sample: refused, naming the key."""
+    limit = 0.5 * min(e.duration for e in experiments)
+    for spec in system.equations.values():
+        late = spec.input_delay
+        if late is None:
+            continue
+        key, value = ("[model] input_delay", late.value) if not late.free else ("[model.input_delay] tau_max",
+                                                                                 late.tau_max)
+        if value > limit:
+            raise CvxidError(f"{key} = {value:.4g} s is more than half the shortest record ({2 * limit:g} s): "
+                             "the model would read the held first sample of the input for most of it; give a "
+                             "smaller delay or longer records")
+
+
 def _estimate_input_delay(system: SystemSpec, rows: SystemBuilder, tau: float | None, solver: str):
     """The input's delay by the equation-error profile of the whole library at the
     fed-back delay ``tau`` (:func:`~cvxid.identify.profile.profile_input_delay`); the
@@ -335,7 +352,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
         model, out.train, out.test, settings.candidates, velocity, window, builders=builders)
     if out.refinement.steps and model.spec.delay is not None and model.spec.delay.exact:
         out.tau = dict(out.tau, estimate=model.tau, interval=None, method="profile (after refinement)")
-    if any(step.added == "input_delay" for step in out.refinement.steps):
+    if out.refinement.steps and model.spec.input_delay is not None and model.spec.input_delay.free:
         out.input_delay = {"estimate": model.spec.input_tau, "interval": None, "method": "profile (after refinement)"}
     out.system = IdentifiedSystem.of(model)
     out.problem = Problem.from_regression(rows.at(model.tau, out.system.specs), model.spec.nonnegative,
@@ -356,7 +373,7 @@ def _polish(out: RunResult):
     else:
         out.polish = polish(out.system, out.train)
     settings = out.spec.diagnose
-    if settings is not None and settings.refine and out.test is not None and not out.coupled:
+    if settings is not None and settings.refine and settings.simulation and out.test is not None and not out.coupled:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
                                                          settings.max_steps)
         out.polish = out.simulation_refinement.polish
@@ -390,8 +407,11 @@ def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_r
     problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)
     estimate = model.tau if model.tau is not None else model.physical.get("tau")
     tau_info = None if spec.model.delay is None else {"estimate": estimate, "interval": None, "method": "output_error"}
+    late = model.spec.input_delay
     out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), tau=tau_info,
-                    stepwise=search, window=rows.window)
+                    stepwise=search, window=rows.window,
+                    input_delay={"estimate": late.value, "interval": None, "method": "output_error"}
+                    if late is not None and late.free else None)
     _score(out, test_rows)
     return out
 

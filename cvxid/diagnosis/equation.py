@@ -351,9 +351,9 @@ def default_candidates(spec: ModelSpec) -> list[str]:
 
 def missing(spec: ModelSpec, name: str) -> bool:
     """Whether the effect or term ``name`` is missing from ``spec`` (an input delay is
-    missing unless the spec estimates one)."""
+    missing unless the spec has one, estimated or known)."""
     if name == "input_delay":
-        return spec.input_delay is None or not spec.input_delay.free
+        return spec.input_delay is None
     return resolve_term(name, (spec.coordinate,), spec.effects).name not in spec.column_names
 
 

@@ -106,7 +106,10 @@ def score_candidates(model: IdentifiedModel, train: Experiment, candidates: Sequ
                      initial=None) -> pd.DataFrame:
     """Each candidate's score statistic (see the module docstring) at the polished
     ``model`` on ``train``, largest first: ``term``, ``meaning``, ``score`` (its
-    :math:`\\chi^2_1` value), ``share`` (of the simulation error it explains to first order)."""
+    :math:`\\chi^2_1` value), ``share`` (of the simulation error it explains to first order).
+    A candidate whose sign is constrained (a nonnegative effect, an input delay) scores 0
+    when its Gauss–Newton step from zero has the forbidden sign: the constrained fit stays
+    at zero (a one-sided score test)."""
     rows = []
     _, r, J = linearisation(model, train, initial)
     sigma2 = float(r @ r) / max(r.size - J.shape[1] - 1, 1)
@@ -121,6 +124,8 @@ def score_candidates(model: IdentifiedModel, train: Experiment, candidates: Sequ
         perp = j - J @ np.linalg.lstsq(J, j, rcond=None)[0]
         statistic = float((perp @ r) ** 2 / max(perp @ perp, 1e-300) / sigma2 * colour)
         share = float((perp @ r) ** 2 / max((perp @ perp) * (r @ r), 1e-300))
+        if perp @ r > 0 and (name == "input_delay" or term.name in trial.spec.nonnegative):
+            statistic = share = 0.0  # its Gauss-Newton step -(perp r)/(perp perp) is negative: the sign forbids it
         rows.append({"effect": name, "term": term.name, "meaning": term.meaning, "score": statistic, "share": share})
     frame = pd.DataFrame(rows, columns=["effect", "term", "meaning", "score", "share"]).set_index("effect")
     return frame.sort_values("score", ascending=False)
@@ -151,12 +156,13 @@ def _test_residual(model: IdentifiedModel, test: Experiment) -> np.ndarray | Non
 
 def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experiment,
                          candidates: Sequence[str] | None = None, max_steps: int = 5) -> SimulationRefinement:
-    """Score the candidates missing from the polished model, add the best significant one,
-    polish, keep it when the test record's free-run error falls beyond chance; repeat."""
+    """Score the candidates missing from the polished model; try the significant ones,
+    best first, each added and polished, until the test record's free-run error falls
+    beyond chance (then score again from the new model); at most ``max_steps`` tries."""
     if polished.system.single is None:
         raise CvxidError("the diagnosis by simulation error is for one equation")
     current, steps, rankings = polished, [], []
-    for _ in range(max_steps):
+    while len(steps) < max_steps:
         model = current.model
         pool = [c for c in (candidates if candidates is not None else default_candidates(model.spec))
                 if _missing(model, c)]
@@ -164,30 +170,39 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
             break
         ranking = score_candidates(model, train, pool, current.initial)
         rankings.append(ranking)
-        if ranking.empty or ranking["score"].iloc[0] < chi2.ppf(LEVEL, 1):
-            break
-        best = ranking.index[0]
         before = _test_residual(model, test)
-        term = ranking.loc[best, "term"]
-        start, _ = _with_candidate(model, best, train, 0.0 if best == "input_delay" else SEED)
-        try:
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", CvxidWarning)  # the new model is judged on the test record
-                fitted = output_error(IdentifiedSystem.of(start), train, current.initial, step=train.dt,
-                                      max_iterations=ITERATIONS)
-            after = _test_residual(fitted.model, test)
-        except (SimulationDiverged, CvxidError):
-            after = None
         if before is None:
             break
-        old = float(before @ before)
-        bound = old * (1 - chi2.ppf(0.95, 1) / effective_rows(before))
-        new = float(after @ after) if after is not None and after.size == before.size else np.inf
-        kept = bool(new < bound)
-        steps.append(SimulationStep(best, term, float(ranking["score"].iloc[0]), float(np.sqrt(old / before.size)),
-                                    float(np.sqrt(new / before.size)), float(np.sqrt(bound / before.size)), kept))
-        if not kept:
+        kept = None
+        for best in ranking.index[ranking["score"] >= chi2.ppf(LEVEL, 1)][:max_steps - len(steps)]:
+            step, fitted = _try(model, best, ranking, current, train, test, before)
+            steps.append(step)
+            if step.kept:
+                kept = fitted
+                break
+        if kept is None:
             break
-        current = replace(fitted, rms_before=current.rms_before, profile=current.profile,
-                          seconds=current.seconds + fitted.seconds)
+        current = replace(kept, rms_before=current.rms_before, profile=current.profile,
+                          seconds=current.seconds + kept.seconds)
     return SimulationRefinement(current, steps, rankings)
+
+
+def _try(model: IdentifiedModel, name: str, ranking: pd.DataFrame, current: PolishResult, train: Experiment,
+         test: Experiment, before: np.ndarray) -> tuple[SimulationStep, PolishResult | None]:
+    """The candidate added and polished from the current model, judged on the test record."""
+    start, _ = _with_candidate(model, name, train, 0.0 if name == "input_delay" else SEED)
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CvxidWarning)  # the new model is judged on the test record
+            fitted = output_error(IdentifiedSystem.of(start), train, current.initial, step=train.dt,
+                                  max_iterations=ITERATIONS)
+        after = _test_residual(fitted.model, test)
+    except (SimulationDiverged, CvxidError):
+        fitted, after = None, None
+    old = float(before @ before)
+    bound = old * (1 - chi2.ppf(0.95, 1) / effective_rows(before))
+    new = float(after @ after) if after is not None and after.size == before.size else np.inf
+    step = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
+                          float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),
+                          float(np.sqrt(bound / before.size)), bool(new < bound))
+    return step, fitted

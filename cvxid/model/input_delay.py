@@ -60,7 +60,11 @@ class InputDelay:
         """Finite bounds: an unbounded ``tau_max`` becomes :func:`default_bound`."""
         if np.isfinite(self.tau_max):
             return self
-        return replace(self, tau_max=max(default_bound(band_edge), self.tau_min, self.value))
+        bound = default_bound(band_edge)
+        if self.tau_min >= bound:
+            raise CvxidError(f"[model.input_delay] tau_min = {self.tau_min:g} s is at or above the default tau_max, "
+                             f"{bound:.4g} s (a quarter period of the output's band edge): give tau_max as well")
+        return replace(self, tau_max=bound)
 
     def at(self, value: float) -> "InputDelay":
         """The same bounds at another value (clipped into them)."""

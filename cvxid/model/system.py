@@ -43,6 +43,8 @@ class SystemSpec:
             if len(delays) != 1 or any(s.delay is None or not s.delay.exact for s in self.equations.values()):
                 raise CvxidError("a system of several equations needs one shared exact delay (method = \"exact\") "
                                  "in every equation, with the same signal and bounds")
+        if len(self.equations) > 1 and any(s.input_delay is not None for s in self.equations.values()):
+            raise CvxidError("an input delay is for one equation only; a coupled system cannot estimate one yet")
         names = set(self.column_names)
         for a, b, factor in self.ties:
             for name in (a, b):

@@ -40,6 +40,8 @@ from cvxid.regression.windows import Windows, resolve_window
 
 ROWS = 2000
 """Windowed rows wanted per record: one every tenth of a window, denser on short records."""
+TARGETS = 8
+"""Regression targets (one per input delay) a block keeps; more are made again when asked."""
 
 
 def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | None):
@@ -149,6 +151,8 @@ class RegressionBuilder:
         """The transform of the input the model receives (minus a known inertia's share)."""
         tau_u = model.input_tau
         if tau_u not in block.targets:
+            if len(block.targets) >= TARGETS:  # a profile over the input delay asks for many, once each
+                block.targets.clear()
             e = self.experiments[block.segment]
             p = block.transform.column(model.received_input(e)[block.rows])
             if not model.inertia:

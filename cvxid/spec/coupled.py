@@ -22,6 +22,7 @@ from cvxid.model.terms import Sign
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.model.delay import ASSUMED
 from cvxid.simulate import CoupledSystem, Equation
+from cvxid.model.library import PARAMETERS
 from cvxid.spec.problem import (
     DiagnoseSettings,
     ProblemSpec,
@@ -77,6 +78,9 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         equations = {label: replace(s, effects=effects) for label, s in equations.items()}
         candidates = tuple(_strings(d, "candidates", "diagnose")) if "candidates" in d else None
         for c in candidates or ():
+            if c in PARAMETERS:
+                raise CvxidError(f"spec: [diagnose] candidates: '{c}' is estimated again in one-equation models only; "
+                                 "a coupled system's shared delay is profiled already")
             resolve_term(c, tuple(equations), effects)  # unknown names fail here, with the catalogue
         diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
                                     _number(d, "min_improvement", "diagnose", 0.2, positive=True),
@@ -101,6 +105,9 @@ def _equations(model: Table) -> dict[str, ModelSpec]:
     equations, named = {}, {}
     for i, t in enumerate(tables):
         where = f"model.equation[{i}]"
+        if "input_delay" in t:
+            raise CvxidError(f"spec: [{where}] input_delay: an input delay is for one equation ([model]) only; "
+                             "a coupled spec cannot estimate one yet")
         table = _table({f"equation[{i}]": t}, f"equation[{i}]", "model", EQUATION_KEYS)
         delay_t = dict(delay, method="exact")
         if "delay_gain" in table:

@@ -319,6 +319,7 @@ class DiagnoseSettings:
     refine: bool = False
     min_improvement: float = 0.2
     max_steps: int = 5
+    simulation: bool = True  # after the output-error polish, the diagnosis by simulation error
 
 
 def declared_effects(raw: Table, model: ModelSpec) -> dict[str, Effect]:
@@ -344,7 +345,7 @@ def declared_effects(raw: Table, model: ModelSpec) -> dict[str, Effect]:
 
 
 def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
-    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects"})
+    d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects", "simulation"})
     candidates = None
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
@@ -357,6 +358,7 @@ def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
                                 fix="0.2 accepts an effect that lowers the error by 20 %"),
         max_steps=_number(d, "max_steps", "diagnose", 5, integer=True, within=(1, 20),
                           fix="each step adds one effect"),
+        simulation=_bool(d, "simulation", "diagnose", True),
     )
 
 
