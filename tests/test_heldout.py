@@ -22,7 +22,8 @@ from cvxid.tools.heldout import (
     write,
 )
 
-EFFECT_TERMS = {"coulomb": "sign(x')", "quadratic_damping": "x'|x'|", "quadratic_stiffness": "x^2", "offset": "1"}
+EFFECT_TERMS = {"coulomb": "sign(x')", "quadratic_damping": "x'|x'|", "quadratic_stiffness": "x^2", "offset": "1",
+                "stribeck": "sign(x')"}
 
 
 def test_a_draw_is_reproducible_and_its_system_independent_of_the_noise_asked_for():
@@ -48,7 +49,7 @@ def test_drawn_parameters_lie_in_the_stated_ranges(effect):
         assert o.noise in NOISES
         term = effect not in ("none", "input_delay")  # a late input adds no term
         assert (EFFECT_TERMS.get(effect) in k) == term
-        assert len(o.coefficients) == 2 + ("x^3" in k) + term
+        assert len(o.coefficients) == 2 + ("x^3" in k) + term + (effect == "stribeck")  # Coulomb and its decay
         assert (INPUT_DELAY_RANGE[0] <= o.input_tau <= INPUT_DELAY_RANGE[1]) == (effect == "input_delay")
         assert o.train.kind in ("multisine", "chirp")
     o = draw(0, effect, duration=8.0)

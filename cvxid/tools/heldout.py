@@ -27,7 +27,10 @@ The draw (all uniform unless said):
   ``offset`` or none): a force of :data:`EFFECT_SHARE` of the force scale ``k1 x_rms``;
   or ``input_delay``: the system receives ``f(t - tau_u)``, ``tau_u`` in
   :data:`INPUT_DELAY_RANGE` (drawn from its own stream, so the rest of the draw is the
-  seed's whatever the effect);
+  seed's whatever the effect); or ``stribeck``: a Coulomb friction of that force plus as
+  much again that decays with the speed, ``F (1 + exp(-(x'/v_s)^2)) sign(x')``
+  (:data:`STRIBECK_SPEED`; the diagnosis-mode spec declares the Stribeck term with the true
+  ``v_s`` as its own effect, as a user who knows the drive would);
 * each record's forcing: a multisine (3–6 sines, frequencies log-uniform over
   :data:`BAND` times ``sqrt(k1/m)``, random phases and weights) or a linear chirp over that
   band (cvxid's ``quadratic_chirp``, shifted in time), scaled so that the standard
@@ -76,7 +79,11 @@ from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged, System, simulate
 
 TAU_RANGE = (0.05, 0.3)
-EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset", "input_delay")
+EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset", "input_delay", "stribeck")
+STRIBECK_SPEED = 0.3
+"""The Stribeck velocity of the ``stribeck`` effect, in units of the speed scale
+``omega x_rms``: its breakaway force (twice the Coulomb level) decays as
+``exp(-(x'/v_s)^2)``."""
 INPUT_DELAY_RANGE = (0.01, 0.05)
 """The input's delay ``tau_u`` (seconds) of the ``input_delay`` effect."""
 EFFECT_SHARE = (0.1, 0.3)
@@ -206,7 +213,11 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
     coefficients = {"x'": c, "x": k1, "x^3": k3}
     input_tau = float(np.random.default_rng([seed, attempt, 3]).uniform(*INPUT_DELAY_RANGE)) \
         if effect == "input_delay" else 0.0
-    if effect not in ("none", "input_delay"):
+    if effect == "stribeck":
+        force, speed = share * k1 * target, omega * target
+        coefficients["sign(x')"] = force
+        coefficients[_stribeck(STRIBECK_SPEED * speed)] = force
+    elif effect not in ("none", "input_delay"):
         force, speed = share * k1 * target, omega * target
         size = {"coulomb": force, "quadratic_damping": force / speed**2, "quadratic_stiffness": sign * force / target**2,
                 "offset": sign * force}[effect]
@@ -223,6 +234,11 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
         forcings.append(forcing)
     return Oscillator(seed, effect, float(mass), coefficients, float(gain), float(tau), noise, duration, *forcings,
                       attempt, input_tau)
+
+
+def _stribeck(speed: float) -> str:
+    """The Stribeck term with the Stribeck velocity ``speed`` (its name as cvxid writes it)."""
+    return parse_term(f"sign(x') * exp(-(x' / {speed:.6g})^2)").name
 
 
 def _decays(system: System, amplitude: float) -> bool:
@@ -305,6 +321,8 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
         **({"model.input_delay": {}} if o.input_tau and mode == "structure" else {}),
         "fit": {"refine": "output_error"},
         **({"diagnose": {"refine": True}} if mode == "diagnosis" else {}),
+        **({"diagnose.effects": {"stribeck": next(n for n, _ in o.coefficients if "exp" in n)}}
+           if mode == "diagnosis" and o.effect == "stribeck" else {}),
     }
     lines = [f"name = {_toml(f'heldout_{o.seed}_{o.effect}')}",
              f"description = {_toml(f'cvxid bench --heldout: seed {o.seed}, attempt {o.attempt}, {mode} mode')}"]
