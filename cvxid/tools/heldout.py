@@ -451,18 +451,24 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
     })
 
 
+PARTS = {"stribeck": ("coulomb",)}
+"""Catalogue effects that are part of a hidden effect (a Stribeck friction has a Coulomb
+level): adding them is not a wrong addition."""
+
+
 def confusion(frame: pd.DataFrame) -> pd.DataFrame:
     """Diagnosis mode, per hidden effect: how often the equation-error diagnosis ranked it
     first, how often it was added (by either stage, and by the simulation stage alone), how
-    often another effect was added (a wrong addition), and which effect was ranked first
-    most often in its place.  The control (``none``) can only have wrong additions."""
+    often another effect was added (a wrong addition; not one of its :data:`PARTS`), and
+    which effect was ranked first most often in its place.  The control (``none``) can only
+    have wrong additions."""
     ok = frame[frame["status"] == "ok"]
     rows = {}
     for effect, group in ok.groupby("effect", sort=False):
         added = [set(filter(None, f"{a},{s}".split(","))) for a, s in
                  zip(group["added"].fillna(""), group["added by simulation"].fillna(""))]
         by_simulation = [effect in set(filter(None, s.split(","))) for s in group["added by simulation"].fillna("")]
-        wrong = [bool(a - {effect}) for a in added]
+        wrong = [bool(a - {effect, *PARTS.get(effect, ())}) for a in added]
         rows[effect] = {
             "systems": len(group),
             "ranked first %": 100 * float((group["first effect"] == effect).mean()),
