@@ -43,7 +43,8 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import band_edge, fit_percent
+from cvxid.metrics import fit_percent
+from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, build_regression
@@ -273,9 +274,8 @@ def _bounded_input_delay(system: SystemSpec, train: Experiment) -> SystemSpec:
     quarter period of the training output's band edge (:mod:`cvxid.model.input_delay`)."""
     if all(s.input_delay is None or np.isfinite(s.input_delay.tau_max) for s in system.equations.values()):
         return system
-    outputs = (train.output(s.coordinate) for s in system.equations.values())
-    edge = min(band_edge(y[np.isfinite(y)], train.dt) for y in outputs)
-    return replace(system, equations={label: replace(s, input_delay=s.input_delay.resolved(edge))
+    bound = record_bound([train.output(s.coordinate) for s in system.equations.values()], train.dt)
+    return replace(system, equations={label: replace(s, input_delay=s.input_delay.resolved(bound))
                                       if s.input_delay is not None else s for label, s in system.equations.items()})
 
 

@@ -34,10 +34,10 @@ from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay
-from cvxid.metrics import band_edge, fit_percent, noise_ceiling_percent
+from cvxid.metrics import fit_percent, noise_ceiling_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, effect, resolve_term
-from cvxid.model.input_delay import InputDelay, default_bound
+from cvxid.model.input_delay import InputDelay, record_bound
 from cvxid.model.terms import DelayedSignal, InputRate, Term
 from cvxid.progress import progress
 from cvxid.regression.builder import RegressionBuilder
@@ -467,9 +467,7 @@ def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
 def with_input_delay(spec: ModelSpec, train: Experiment) -> ModelSpec:
     """``spec`` with an input delay to estimate, from 0 to a quarter period of the training
     output's band edge (:func:`~cvxid.model.input_delay.default_bound`)."""
-    y = train.output(spec.coordinate)
-    bound = default_bound(band_edge(y[np.isfinite(y)], train.dt))
-    return replace(spec, input_delay=InputDelay(0.0, 0.0, bound))
+    return replace(spec, input_delay=InputDelay(0.0, 0.0, record_bound([train.output(spec.coordinate)], train.dt)))
 
 
 # ---------------------------------------------------------------------- the loop

@@ -162,7 +162,8 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     if polished.system.single is None:
         raise CvxidError("the diagnosis by simulation error is for one equation")
     current, steps, rankings = polished, [], []
-    while len(steps) < max_steps:
+    before = _test_residual(polished.model, test)  # then each kept model's own, from its trial
+    while before is not None and len(steps) < max_steps:
         model = current.model
         pool = [c for c in (candidates if candidates is not None else default_candidates(model.spec))
                 if _missing(model, c)]
@@ -170,26 +171,25 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
             break
         ranking = score_candidates(model, train, pool, current.initial)
         rankings.append(ranking)
-        before = _test_residual(model, test)
-        if before is None:
-            break
         kept = None
         for best in ranking.index[ranking["score"] >= chi2.ppf(LEVEL, 1)][:max_steps - len(steps)]:
-            step, fitted = _try(model, best, ranking, current, train, test, before)
+            step, fitted, after = _try(model, best, ranking, current, train, test, before)
             steps.append(step)
             if step.kept:
                 kept = fitted
                 break
         if kept is None:
             break
+        before = after
         current = replace(kept, rms_before=current.rms_before, profile=current.profile,
                           seconds=current.seconds + kept.seconds)
     return SimulationRefinement(current, steps, rankings)
 
 
 def _try(model: IdentifiedModel, name: str, ranking: pd.DataFrame, current: PolishResult, train: Experiment,
-         test: Experiment, before: np.ndarray) -> tuple[SimulationStep, PolishResult | None]:
-    """The candidate added and polished from the current model, judged on the test record."""
+         test: Experiment, before: np.ndarray) -> tuple[SimulationStep, PolishResult | None, np.ndarray | None]:
+    """The candidate added and polished from the current model, judged on the test record
+    (the step, the fit and its test residual)."""
     start, _ = _with_candidate(model, name, train, 0.0 if name == "input_delay" else SEED)
     try:
         with warnings.catch_warnings():
@@ -205,4 +205,4 @@ def _try(model: IdentifiedModel, name: str, ranking: pd.DataFrame, current: Poli
     step = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
                           float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),
                           float(np.sqrt(bound / before.size)), bool(new < bound))
-    return step, fitted
+    return step, fitted, after

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from cvxid.errors import CvxidError
+from cvxid.metrics import band_edge
 
 QUARTER_PERIOD = 0.25
 """The default largest input delay, in periods of the output's band edge: a lag of a
@@ -56,11 +57,10 @@ class InputDelay:
         """Whether the value is estimated (its bounds differ)."""
         return self.tau_max > self.tau_min
 
-    def resolved(self, band_edge: float) -> "InputDelay":
-        """Finite bounds: an unbounded ``tau_max`` becomes :func:`default_bound`."""
+    def resolved(self, bound: float) -> "InputDelay":
+        """Finite bounds: an unbounded ``tau_max`` becomes ``bound`` (:func:`record_bound`)."""
         if np.isfinite(self.tau_max):
             return self
-        bound = default_bound(band_edge)
         if self.tau_min >= bound:
             raise CvxidError(f"[model.input_delay] tau_min = {self.tau_min:g} s is at or above the default tau_max, "
                              f"{bound:.4g} s (a quarter period of the output's band edge): give tau_max as well")
@@ -76,6 +76,13 @@ class InputDelay:
     @classmethod
     def from_dict(cls, data: dict) -> "InputDelay":
         return cls(float(data["value"]), float(data["tau_min"]), float(data["tau_max"]))
+
+
+def record_bound(outputs, dt: float) -> float:
+    """:func:`default_bound` of the fastest of ``outputs`` (sampled every ``dt``; NaN gaps
+    ignored)."""
+    edge = max(band_edge(y[np.isfinite(y)], dt) for y in (np.asarray(o, float) for o in outputs))
+    return default_bound(edge)
 
 
 def default_bound(band_edge: float) -> float:
