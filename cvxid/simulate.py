@@ -368,7 +368,7 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 
 
 # ---------------------------------------------------------------------- kernels
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", inline="always")
 def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps):
     """:math:`q_d^{(r)}(t_k + c h - \\tau)` from the history buffer (or before t = 0)."""
     if instant[b]:
@@ -434,9 +434,9 @@ def _program(ops, args, first, stop, x, v, stack):
     return stack[0]
 
 
-@njit(cache=True, error_model="numpy")
-def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A,
-           steps, h, out):
+@njit(cache=True, error_model="numpy", inline="always")
+def _accel(b, s, x, v, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, X, V,
+           A, steps, h, out):
     eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
     C = x.size
     qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps)
@@ -449,7 +449,10 @@ def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws
         if kind == 0:
             val = 1.0
             for c in range(C):
-                val *= x[c] ** px[m, c] * v[c] ** pv[m, c]
+                for _ in range(px[m, c]):
+                    val *= x[c]
+                for _ in range(pv[m, c]):
+                    val *= v[c]
         elif kind == 2:
             val = v[tc[m]] * abs(v[tc[m]])
         elif kind == 4:
@@ -457,8 +460,7 @@ def _accel(b, s, x, v, k, ci, terms, stack, F, mass, coefs, gain, d, q, offs, ws
         else:
             val = np.tanh(v[tc[m]] / scale[m])
         out[eqs[m]] -= coefs[m, b] * val
-    sign = np.empty(C)  # each coordinate's friction direction, in [-1, 1] while it sticks
-    for c in range(C):
+    for c in range(C):  # each coordinate's friction direction, in [-1, 1] while it sticks
         sign[c] = 1.0 if v[c] > 0 else (-1.0 if v[c] < 0 else 0.0)
     for m in range(eqs.size):
         e = eqs[m]
@@ -495,26 +497,25 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, 
     A = np.zeros((steps + 1, C, B))
     failures = np.full(B, -1)
     for b in prange(B):
-        a1, a2, a3, a4 = np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
+        a = np.zeros((4, C))  # the four stages' accelerations
+        x, v, xs, vs, sign = x0[:, b].copy(), v0[:, b].copy(), np.zeros(C), np.zeros(C), np.zeros(C)
         stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
-        x, v = x0[:, b].copy(), v0[:, b].copy()
         X[0, :, b], V[0, :, b] = x, v
-        for k in range(steps):
-            _accel(b, 2 * k, x, v, k, 0, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd,
-                   X, V, A, steps, h, a1)
-            A[k, :, b] = a1
-            x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-            _accel(b, 2 * k + 1, x2, v2, k, 1, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
-                   Hd, X, V, A, steps, h, a2)
-            x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-            _accel(b, 2 * k + 1, x3, v3, k, 1, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
-                   Hd, X, V, A, steps, h, a3)
-            x4, v4 = x + h * v3, v + h * a3
-            _accel(b, 2 * k + 2, x4, v4, k, 2, terms, stack, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy,
-                   Hd, X, V, A, steps, h, a4)
-            x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
-            v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
-            X[k + 1, :, b], V[k + 1, :, b] = x, v
+        for k in range(steps):  # no allocation inside the loop: the work arrays are reused
+            for j in range(4):  # stage j at t_k + c h, c = 0, 1/2, 1/2, 1 (one call site: inlined once)
+                ci = (j + 1) // 2
+                c = 0.5 * ci
+                for i in range(C):
+                    xs[i] = x[i] + c * h * vs[i] if j > 0 else x[i]
+                    vs[i] = v[i] + c * h * a[j - 1, i] if j > 0 else v[i]
+                _accel(b, 2 * k + ci, xs, vs, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, offs, ws,
+                       instant, fill, Hy, Hd, X, V, A, steps, h, a[j])
+                if j == 0:  # the later stages may read this step's slope of a fed-back velocity
+                    A[k, :, b] = a[0]
+            for i in range(C):
+                x[i] += h / 6 * (6 * v[i] + h * (a[0, i] + a[1, i] + a[2, i]))
+                v[i] += h / 6 * (a[0, i] + 2 * a[1, i] + 2 * a[2, i] + a[3, i])
+                X[k + 1, i, b], V[k + 1, i, b] = x[i], v[i]
             if _diverged(x, v):
                 failures[b] = k + 1
                 break
