@@ -50,11 +50,19 @@ def start_index(experiment: Experiment, delay, history: str | None = None) -> in
     return k
 
 
-def measured_past(experiment: Experiment, coordinate: str, derivative: int = 0) -> Past:
+SPLINE_MARGIN = 64
+"""Samples of the smoothed record kept beyond the last one a past is read at (a cubic
+spline's dependence on far samples decays by about 0.27 a sample)."""
+
+
+def measured_past(experiment: Experiment, coordinate: str, derivative: int = 0, until: int | None = None) -> Past:
     """The fed-back signal (``derivative`` 0: position, 1: velocity) and its slope at any
-    time inside ``experiment``: the smoothed measurement, by a cubic spline."""
+    time inside ``experiment`` (up to sample ``until``, when given): the smoothed
+    measurement, by a cubic spline."""
     y = experiment.output(coordinate)
-    spline = CubicSpline(experiment.time, savgol_filter(y, savgol_window(y), 3, mode="interp"))
+    w = savgol_window(y)
+    n = y.size if until is None else min(y.size, until + w + SPLINE_MARGIN)
+    spline = CubicSpline(experiment.time[:n], savgol_filter(y[:n], min(w, n - (1 - n % 2)), 3, mode="interp"))
     return lambda times: (spline(times, derivative), spline(times, derivative + 1))
 
 
@@ -62,7 +70,7 @@ def simulation_start(experiment: Experiment, delay, history: str | None = None) 
     """Where a simulation of ``experiment`` starts (:func:`start_index`) and the fed-back
     signal before it (:func:`measured_past`; None when it starts at the record's start)."""
     k = start_index(experiment, delay, history)
-    return k, (measured_past(experiment, delay.coordinate, delay.derivative) if k else None)
+    return k, (measured_past(experiment, delay.coordinate, delay.derivative, until=k) if k else None)
 
 
 def padded(values: np.ndarray, start: int) -> np.ndarray:

@@ -32,6 +32,7 @@ compares positions only: on that example its delay error is -0.05 % ± 0.8 % (10
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -91,8 +92,22 @@ def observer(y: np.ndarray, dt: float, gains: ObserverGains = ObserverGains()) -
 def savgol_window(y: np.ndarray, polyorder: int = 3) -> int:
     """The longest Savitzky–Golay window whose smoothing residual stays at the noise level
     (the discrepancy principle): longer windows average more noise, but once the residual
-    exceeds the noise they start to cut the signal itself."""
-    y = np.asarray(y, float)
+    exceeds the noise they start to cut the signal itself.  Remembered for the last
+    :data:`REMEMBERED` signals (a run asks again for the same record many times)."""
+    y = np.ascontiguousarray(y, float)
+    key = (hashlib.blake2b(y.tobytes(), digest_size=16).digest(), polyorder)
+    if key not in _windows:
+        if len(_windows) >= REMEMBERED:
+            _windows.pop(next(iter(_windows)))
+        _windows[key] = _savgol_window(y, polyorder)
+    return _windows[key]
+
+
+REMEMBERED = 64
+_windows: dict[tuple[bytes, int], int] = {}
+
+
+def _savgol_window(y: np.ndarray, polyorder: int) -> int:
     sigma = noise_level(y)
     n = len(y)
     best = polyorder + 2 | 1
@@ -140,5 +155,6 @@ def initial_state(t: np.ndarray, y: np.ndarray) -> tuple[float, float]:
     is chosen from the noise (a short fixed window lets the noise into the velocity)."""
     w = savgol_window(y)
     dt = float(t[1] - t[0])
-    return (float(savgol_filter(y, w, 3, mode="interp")[0]),
-            float(savgol_filter(y, w, 3, deriv=1, delta=dt, mode="interp")[0]))
+    head = np.asarray(y, float)[:w]  # the first sample's fit reads the first window only
+    return (float(savgol_filter(head, w, 3, mode="interp")[0]),
+            float(savgol_filter(head, w, 3, deriv=1, delta=dt, mode="interp")[0]))
