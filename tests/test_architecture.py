@@ -12,7 +12,7 @@ import pytest
 PACKAGE = Path(__file__).resolve().parents[1] / "cvxid"
 
 LAYERS = [
-    {"errors", "progress", "metrics", "plots"},
+    {"errors", "progress", "metrics", "plots", "parallel"},
     {"data"},
     {"model"},
     {"simulate", "initial_state"},

@@ -13,6 +13,7 @@ import warnings
 
 from cvxid import __version__
 from cvxid.errors import CvxidError
+from cvxid.parallel import BACKENDS
 from cvxid.progress import set_quiet
 
 
@@ -22,14 +23,15 @@ def _run(args) -> int:
 
     if args.out:
         prepare_folder(args.out)  # an unusable --out fails before any work
+    spec = _with_engine(args.spec, args.backend, args.scheduler)
     if args.profile:
         from cvxid.app.profile import profiled, since_start
 
         imported = since_start()
         (result, (path, replaced)), table = profiled(
-            lambda: (r := run(args.spec), write_report(r, args.out) if args.out else (None, None)), imported)
+            lambda: (r := run(spec), write_report(r, args.out) if args.out else (None, None)), imported)
     else:
-        result = run(args.spec)
+        result = run(spec)
         path, replaced = write_report(result, args.out) if args.out else (None, None)  # before printing: a
     print(result.summary())                                                            # closed pipe loses nothing
     if path:
@@ -38,6 +40,23 @@ def _run(args) -> int:
         print("\nwhere the seconds went (cumulative; nested stages count in each):")
         print(table.to_string(float_format=lambda v: f"{v:.2f}"))
     return 0
+
+
+def _with_engine(spec: str, backend: str | None, scheduler: str | None):
+    """The spec (its path or name), or the parsed spec with ``--backend``/``--scheduler``
+    in place of its ``[fit]`` ones."""
+    if backend is None and scheduler is None:
+        return spec
+    from dataclasses import replace
+
+    from cvxid.parallel import check_backend
+    from cvxid.spec.load import load_problem
+
+    parsed = load_problem(spec)
+    backend = backend or parsed.fit.backend
+    scheduler = scheduler or parsed.fit.scheduler
+    check_backend(backend, scheduler, where="--backend")
+    return replace(parsed, fit=replace(parsed.fit, backend=backend, scheduler=scheduler))
 
 
 def _init(args) -> int:
@@ -136,6 +155,7 @@ def _heldout(args) -> int:
     import pandas as pd
 
     from cvxid.app.report import plain
+    from cvxid.parallel import engine
     from cvxid.tools.heldout import EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
@@ -145,8 +165,9 @@ def _heldout(args) -> int:
     noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
     lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
     start = time.perf_counter()
-    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
-                       for length in lengths], ignore_index=True)
+    with engine(args.backend or "loky", args.scheduler):
+        frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
+                           for length in lengths], ignore_index=True)
     wall = time.perf_counter() - start
     by = ("duration", "effect", "noise") if len(lengths) > 1 else ("effect", "noise")
     table = summary(frame, by)
@@ -184,7 +205,11 @@ def main(argv=None) -> int:
     quiet = argparse.ArgumentParser(add_help=False)
     quiet.add_argument("--quiet", "-q", action="store_true", help="no progress bars")
     sub = parser.add_subparsers(dest="command", required=True)
-    p_run = sub.add_parser("run", help="identify the model of a problem spec", parents=[quiet])
+    engines = argparse.ArgumentParser(add_help=False)
+    engines.add_argument("--backend", default=None, choices=BACKENDS,
+                         help="where parallel work runs (joblib): loky (this machine), threading, dask, ray")
+    engines.add_argument("--scheduler", default=None, help="the dask (or ray) cluster's address, e.g. tcp://host:8786")
+    p_run = sub.add_parser("run", help="identify the model of a problem spec", parents=[quiet, engines])
     p_run.add_argument("spec", help="a TOML problem spec (see docs/spec.md) or a shipped problem's name")
     p_run.add_argument("--out", default=None, help="folder for result.json, report.md and figures")
     p_run.add_argument("--profile", action="store_true", help="also print where the seconds went, stage by stage")
@@ -198,7 +223,7 @@ def main(argv=None) -> int:
     p_init.add_argument("--input", default=None, help="the input's column (default: found)")
     p_init.add_argument("--dt", type=float, default=None, help="the sample step, for a file without a time column")
     p_init.add_argument("--force", action="store_true", help="replace an existing spec file")
-    p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet])
+    p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet, engines])
     p_bench.add_argument("spec", nargs="?", help="a TOML problem spec (none with --heldout)")
     p_bench.add_argument("--order", type=int, default=None, help="library order (default: the spec's)")
     p_bench.add_argument("--naive-lambdas", type=int, default=5, help="lambdas timed for the naive cvxpy baseline")

@@ -46,6 +46,7 @@ from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import fit_percent
 from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
+from cvxid.parallel import engine
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
@@ -61,7 +62,7 @@ def run(spec) -> RunResult:
     if isinstance(spec, (str, FilePath)):
         spec = load_problem(spec)
     start = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
+    with warnings.catch_warnings(record=True) as caught, engine(spec.fit.backend, spec.fit.scheduler):
         warnings.simplefilter("always", CvxidWarning)
         if spec.fit.velocity == "auto":
             result = _best_velocity(spec)

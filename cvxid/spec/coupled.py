@@ -45,7 +45,7 @@ JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
 JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window",
-                  "bootstrap", "n_jobs", "loss", "allow_large"}
+                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler"}
 
 
 def is_joint(raw: Table) -> bool:

@@ -26,6 +26,7 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Effect, Library, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
+from cvxid.parallel import BACKENDS, check_backend
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import KINDS, WINDOWS, Windows
 from cvxid.simulate import CoupledSystem, Equation, simulate_coupled
@@ -140,6 +141,9 @@ class FitSettings:
     window: float | str = "auto"
     loss: str = "squared"
     allow_large: bool = False  # jobs above MAX_SOLVES, builds above the memory available
+    n_jobs: int = 1  # joblib workers (bootstrap, order search)
+    backend: str = "loky"  # where joblib's work runs (cvxid.parallel)
+    scheduler: str | None = None  # a dask or ray cluster's address
 
 
 @dataclass(frozen=True)
@@ -230,7 +234,7 @@ SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
               "input_delay"}
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine", "window", "loss", "allow_large"}
+            "refine", "window", "loss", "allow_large", "backend", "scheduler"}
 
 
 def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
@@ -475,8 +479,15 @@ def _fit(table: Table) -> FitSettings:
     solver = _string(table, "solver", where, "CLARABEL").upper()
     if solver not in SOLVERS:
         raise CvxidError(f"spec: [fit] solver must be one of {', '.join(SOLVERS)}, got '{solver}'")
-    n_jobs(table)
+    backend = _string(table, "backend", where, "loky", choices=BACKENDS)
+    scheduler = table.get("scheduler")
+    if scheduler is not None:
+        scheduler = _string(table, "scheduler", where, "")
+    check_backend(backend, scheduler, where=f"spec: [{where}] backend")
     settings = FitSettings(
+        n_jobs=n_jobs(table),
+        backend=backend,
+        scheduler=scheduler,
         estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "lstsq", "stepwise_oe")),
         lambdas=lambdas,
         velocity=velocity,

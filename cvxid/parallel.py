@@ -1,0 +1,78 @@
+"""Parallel work on an engine the user picks, through joblib.
+
+cvxid runs no pool of its own: bootstrap samples, the order search, the stepwise
+candidates and the held-out benchmark are joblib ``Parallel`` calls, and :func:`engine`
+chooses where they run for the duration of a ``with`` block:
+
+* ``"loky"`` (joblib's default): worker processes on this machine, ``n_jobs`` of them;
+* ``"threading"``: threads of this process;
+* ``"dask"``: a `dask.distributed <https://distributed.dask.org>`_ cluster, at the
+  scheduler ``address`` (``"tcp://host:8786"``), or a local cluster started for the block
+  when no address is given; every core of the cluster is used (``pip install
+  "cvxid[distributed]"`` brings dask);
+* ``"ray"``: a `Ray <https://www.ray.io>`_ cluster (``ray.init(address)``, joblib backend
+  ``ray.util.joblib``; Ray is installed by the user).
+
+The numbers do not depend on the engine: each task carries its own data and seed.
+
+In a spec, ``[fit] backend = "dask"`` and ``[fit] scheduler = "tcp://host:8786"``; on the
+command line ``cvxid run SPEC --backend dask --scheduler tcp://host:8786`` (also
+``cvxid bench --heldout``).
+"""
+
+from __future__ import annotations
+
+from contextlib import contextmanager
+from typing import Iterator
+
+from joblib import parallel_config
+
+from cvxid.errors import CvxidError
+
+BACKENDS = ("loky", "threading", "dask", "ray")
+
+
+def check_backend(backend: str, scheduler: str | None = None, where: str = "backend") -> None:
+    """A clear error for an engine cvxid does not know, or a scheduler it cannot use."""
+    if backend not in BACKENDS:
+        raise CvxidError(f"{where} must be one of {', '.join(BACKENDS)}, got '{backend}'")
+    if scheduler is not None and backend not in ("dask", "ray"):
+        raise CvxidError(f"a scheduler address ('{scheduler}') needs backend = \"dask\" or \"ray\", "
+                         f"not '{backend}'")
+
+
+@contextmanager
+def engine(backend: str = "loky", scheduler: str | None = None) -> Iterator[None]:
+    """Run every joblib ``Parallel`` call inside the block on ``backend`` (see the module
+    docstring); ``scheduler``: the cluster's address (dask, ray)."""
+    check_backend(backend, scheduler)
+    if backend == "loky":
+        yield
+    elif backend == "threading":
+        with parallel_config(backend="threading"):
+            yield
+    elif backend == "dask":
+        try:
+            from dask.distributed import Client
+        except ImportError as exc:
+            raise CvxidError('backend = "dask" needs dask.distributed: pip install "cvxid[distributed]"') from exc
+        try:
+            client = Client(scheduler) if scheduler else Client()
+        except (OSError, TimeoutError) as exc:
+            raise CvxidError(f"cannot reach the dask scheduler at '{scheduler}' ({exc}); start one "
+                             "(`dask scheduler`) or leave scheduler out for a local cluster") from exc
+        try:
+            with parallel_config(backend="dask"):
+                yield
+        finally:
+            client.close()
+    else:
+        try:
+            import ray
+            from ray.util.joblib import register_ray
+        except ImportError as exc:
+            raise CvxidError('backend = "ray" needs Ray: pip install "ray[default]"') from exc
+        ray.init(address=scheduler, ignore_reinit_error=True)
+        register_ray()
+        with parallel_config(backend="ray"):
+            yield

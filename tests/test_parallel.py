@@ -1,0 +1,80 @@
+"""Parallel work on the engine a user picks (cvxid.parallel): the numbers do not depend on it."""
+
+import sys
+
+import numpy as np
+import pytest
+
+from cvxid.app.run import run
+from cvxid.errors import CvxidError
+from cvxid.parallel import engine
+from cvxid.spec.load import parse_problem
+from .conftest import TEST_SIMULATED, TRAIN_SIMULATED, cli_error
+
+SPEC = f"""name = "bootstrap_on_a_cluster"
+[truth]
+mass = 1.0
+coefficients = {{ "x'" = 0.4, "x" = 6.0, "x^3" = 2.0 }}
+delay = {{ signal = "x", gain = 1.5, tau = 0.15 }}
+{TRAIN_SIMULATED}
+{TEST_SIMULATED}
+[model.library]
+order = 3
+[model.delay]
+signal = "x"
+gain = 1.5
+method = "exact"
+tau_max = 0.4
+[fit]
+lambdas = {{ min = 1e-5, max = 1e1, count = 12 }}
+bootstrap = {{ samples = 6, fraction = 0.5, seed = 3 }}
+n_jobs = 2
+"""
+
+
+def _spec(tmp_path, **fit):
+    import tomllib
+
+    raw = tomllib.loads(SPEC)
+    raw["fit"].update(fit)
+    return parse_problem(raw, tmp_path)
+
+
+@pytest.mark.slow
+def test_a_bootstrap_on_a_dask_cluster_gives_the_serial_numbers(tmp_path):
+    distributed = pytest.importorskip("dask.distributed")  # the [test] extra installs it
+    serial = run(_spec(tmp_path, n_jobs=1))
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None) as cluster:
+        spread = run(_spec(tmp_path, backend="dask", scheduler=cluster.scheduler_address))
+        assert any("_one_sample" in prefix for prefix in cluster.scheduler.task_prefixes)  # ran there
+    a, b = serial.bootstrap.coefficients, spread.bootstrap.coefficients
+    assert a.shape == (6, len(serial.problem.names)) and a.notna().all().all()
+    np.testing.assert_allclose(b.to_numpy(), a.to_numpy(), rtol=1e-9, atol=1e-12)
+    # and the ensemble is a real one: the stiffness of the truth within 2 %, samples that differ
+    assert abs(serial.physical["x"] - 6.0) < 0.12
+    assert a["x"].std() > 0
+
+
+def test_an_unknown_engine_is_named_with_the_choices(tmp_path, capsys):
+    err = cli_error(tmp_path, capsys, SPEC.replace('n_jobs = 2', 'backend = "spark"'))
+    assert "[fit] backend must be one of loky, threading, dask, ray" in err and "spark" in err
+    with pytest.raises(CvxidError, match="needs backend"):
+        with engine("loky", "tcp://127.0.0.1:8786"):
+            pass
+
+
+def test_a_missing_dask_says_how_to_install_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "dask.distributed", None)  # as if not installed
+    with pytest.raises(CvxidError, match=r'pip install "cvxid\[distributed\]"'):
+        with engine("dask"):
+            pass
+
+
+def test_an_unreachable_scheduler_is_a_clear_error():
+    pytest.importorskip("dask.distributed")
+    import dask
+
+    with dask.config.set({"distributed.comm.timeouts.connect": "1s"}):
+        with pytest.raises(CvxidError, match="cannot reach the dask scheduler at 'tcp://127.0.0.1:9'"):
+            with engine("dask", "tcp://127.0.0.1:9"):
+                pass
