@@ -47,3 +47,25 @@ def test_bad_ties_are_named():
         Problem.from_regression(equations(0), ties=[("a:u", "a:u", 1.0)])
     with pytest.raises(CvxidError, match="both must be distinct columns"):
         Problem.from_regression(equations(0), ties=[("a:u", "c:u", 1.0)])
+
+
+def test_ties_eliminated_give_the_cvxpy_solution_with_chains_and_signs(monkeypatch):
+    """The tied refit by elimination (scipy's bounded least squares on merged columns)
+    equals the cvxpy problem's solution: chains of ties, a negative factor, signs."""
+    import cvxid.identify.problem as problem_module
+
+    ties = [("a", "b", 2.0), ("b", "c", -0.5), ("d", "e", 3.0)]
+    names = list("abcdef")
+    for seed in range(20):
+        rng = np.random.default_rng(seed)
+        P = rng.standard_normal((300, 6)) * np.array([1.0, 10.0, 0.1, 2.0, 1.0, 5.0])
+        y = P @ rng.standard_normal(6) + 0.1 * rng.standard_normal(300)
+        problem = Problem.from_arrays(P, y, names, nonnegative=("c", "d"), ties=ties)
+        eliminated = problem.refit(np.ones(6, bool)).coefficients
+        with monkeypatch.context() as m:
+            m.setattr(problem_module, "_tied_bounded_least_squares", lambda *a: None)
+            by_cvxpy = problem.refit(np.ones(6, bool)).coefficients
+        np.testing.assert_allclose(eliminated, by_cvxpy, rtol=1e-5, atol=1e-7 * np.abs(by_cvxpy).max())
+        a, b, c, d, e, _ = eliminated
+        assert a == pytest.approx(2 * b, rel=1e-12) and b == pytest.approx(-0.5 * c, rel=1e-12)
+        assert d == pytest.approx(3 * e, rel=1e-12) and c >= 0 and d >= 0

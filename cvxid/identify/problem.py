@@ -313,11 +313,56 @@ def _tie_factor(reduced: Reduced, names, a: str, b: str, factor: float) -> float
     return factor * scale[names.index(a)] / scale[names.index(b)]
 
 
+def _tied_bounded_least_squares(reduced: Reduced, names, idx, lower, ties) -> np.ndarray | None:
+    r"""The tied, sign-constrained least squares by elimination: each tie
+    :math:`c_a = \rho c_b` writes a column as a multiple of its group's first one, whose
+    column becomes :math:`\sum_i g_i R_{:,i}` (chains of ties compose), and the signs of
+    its members bound it; then scipy's bounded least squares.  None when the ties are
+    inconsistent (a cycle with another factor) or the signs pin a group at zero: the cvxpy
+    problem answers then."""
+    where = {names[i]: j for j, i in enumerate(idx)}
+    parent = list(range(idx.size))
+    share = np.ones(idx.size)  # c_j = share[j] * c_parent[j]
+
+    def root(j):
+        g = 1.0
+        while parent[j] != j:
+            g *= share[j]
+            j = parent[j]
+        return j, g
+
+    for a, b, f in ties:
+        (ra, ga), (rb, gb) = root(where[a]), root(where[b])
+        rho = _tie_factor(reduced, names, a, b, f)
+        if ra == rb:
+            if not np.isclose(ga, rho * gb, rtol=1e-12, atol=0.0):
+                return None
+            continue
+        if ga == 0:
+            return None
+        parent[ra], share[ra] = rb, rho * gb / ga  # c_ra = c_a / ga = rho gb / ga c_rb
+    roots, gains = zip(*(root(j) for j in range(idx.size)))
+    groups = sorted(set(roots))
+    A = np.zeros((reduced.R.shape[0], len(groups)))
+    low, high = np.full(len(groups), -np.inf), np.full(len(groups), np.inf)
+    for j, (r, g) in enumerate(zip(roots, gains)):
+        k = groups.index(r)
+        A[:, k] += g * reduced.R[:, idx[j]]
+        if lower[j] == 0 and g != 0:
+            low[k], high[k] = (max(low[k], 0.0), high[k]) if g > 0 else (low[k], min(high[k], 0.0))
+    if np.any(low >= high):
+        return None
+    sol = lsq_linear(A, reduced.r, bounds=(low, high), method="bvls")
+    if not sol.success:
+        return None
+    return np.array([g * sol.x[groups.index(r)] for r, g in zip(roots, gains)])
+
+
 def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), ties=()) -> np.ndarray:
     """Scaled least-squares coefficients of the reduced regression on the columns in
     ``mask`` (the others zero), ``nonnegative`` columns kept ``>= 0`` (scipy's bounded
-    least squares) and ``ties`` ``(a, b, factor)``: :math:`c_a = \rho c_b` (then a small
-    cvxpy problem).  A tie keeps both of its columns or neither."""
+    least squares) and ``ties`` ``(a, b, factor)``: :math:`c_a = \rho c_b` (eliminated,
+    :func:`_tied_bounded_least_squares`; a small cvxpy problem where they cannot be).  A tie keeps both of its columns or neither."""
     names = tuple(names)
     mask = np.array(mask, dtype=bool)
     for a, b, _ in ties:
@@ -332,6 +377,10 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
         if not sol.success:
             raise SolverFailure(f"the least-squares refit did not converge ({sol.message})")
         scaled[idx] = sol.x
+        return scaled
+    eliminated = _tied_bounded_least_squares(reduced, names, idx, lower, ties)
+    if eliminated is not None:
+        scaled[idx] = eliminated
         return scaled
     c = cp.Variable(idx.size)
     where = {names[i]: j for j, i in enumerate(idx)}
