@@ -350,6 +350,7 @@ class _Problem:
     def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float, initial,
                  fixed_tau: float | None = None):
         self.base, self.experiments = system, experiments
+        self._inputs: dict[tuple, np.ndarray] = {}  # each experiment's inputs at the RK4 nodes
         self.one = system.single is not None
         self.stride = max(1, int(round(step / experiments[0].dt)))
         self.systems = {label: m.system() for label, m in system.models.items()}
@@ -490,10 +491,17 @@ class _Problem:
         """Experiment ``i``'s inputs at the RK4 nodes, ``(S, C, 1)``, or ``(S, C, B)`` when
         the input's delay differs across the batch (read at :math:`t - \\tau_u`; before
         the record, its first sample)."""
-        if self.input_splines is None:
+        if self.input_splines is None:  # the same at every call: interpolated once
             inputs = [e_input[self.starts[i]::self.stride] for e_input in
                       (self.experiments[i].input(m.spec.input) for m in self.base.models.values())]
-            return lambda fine, h: np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None]
+
+            def at_nodes(fine: np.ndarray, h: float) -> np.ndarray:
+                key = (i, h, fine.size)
+                if key not in self._inputs:
+                    self._inputs[key] = np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None]
+                return self._inputs[key]
+
+            return at_nodes
         taus = np.broadcast_to(values.get("tau_u", self.input_delay.value), (B,))
         first = self.experiments[i].time[0]
 
