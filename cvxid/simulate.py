@@ -258,10 +258,12 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     v0 = np.ascontiguousarray(np.broadcast_to(np.asarray(v0, float), (C, B)))
     fill = x0[delayed].copy() if (history == "initial" and derivative == 0) else np.zeros(B)
     past_values, past_slopes = _past_nodes(history, past, t[0], tau, h, np.any(gain != 0))
-    coefs = np.ascontiguousarray(coefs, float)
     codes = _term_codes(coordinates, terms)
-    args = (F, np.ascontiguousarray(mass), coefs, np.ascontiguousarray(gain), delayed, derivative, offs, ws, instant,
-            fill, past_values, past_slopes, x0, v0, h, steps)
+    # every array C-contiguous and writable: one compiled signature (numba types a read-only
+    # view apart, and would compile the kernel again for it)
+    own = lambda a: np.require(a, float, ["C", "W"])  # noqa: E731  (copies only when needed)
+    args = (own(F), own(mass), own(coefs), own(gain), delayed, derivative, offs, ws, instant, own(fill),
+            own(past_values), own(past_slopes), own(x0), own(v0), h, steps)
     if codes is not None:
         X, V, failed = _kernel(codes, *args)
     else:
