@@ -29,7 +29,7 @@ def _stages() -> dict[str, list]:
         "regression (the algebraic operation)": [RegressionBuilder.__init__, RegressionBuilder.at],
         "delay profile (convex)": [system.fit_support],
         "lambda path (solves)": [path.Path.compute.__func__],
-        "structure by simulation error (stepwise_oe; its workers' time is not seen)": [run._stepwise],
+        "stepwise search by simulation error": [run._stepwise],
         "bootstrap": [bootstrap.bootstrap],
         "diagnosis and refinement": [run._diagnose],
         "output-error polish (simulations)": [run._polish],
