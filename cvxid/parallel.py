@@ -8,7 +8,8 @@ chooses where they run for the duration of a ``with`` block:
 * ``"threading"``: threads of this process;
 * ``"dask"``: a `dask.distributed <https://distributed.dask.org>`_ cluster, at the
   scheduler ``address`` (``"tcp://host:8786"``), or a local cluster started for the block
-  when no address is given; every core of the cluster is used (``pip install
+  when no address is given (a worker a core, one thread each); every core of the cluster
+  is used (``pip install
   "cvxid[distributed]"`` brings dask);
 * ``"ray"``: a `Ray <https://www.ray.io>`_ cluster (``ray.init(address)``, joblib backend
   ``ray.util.joblib``; Ray is installed by the user).
@@ -22,6 +23,7 @@ command line ``cvxid run SPEC --backend dask --scheduler tcp://host:8786`` (also
 
 from __future__ import annotations
 
+import os
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -30,6 +32,11 @@ from joblib import parallel_config
 from cvxid.errors import CvxidError
 
 BACKENDS = ("loky", "threading", "dask", "ray")
+ONE_THREAD = {name: "1" for name in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS",
+                                     "MKL_NUM_THREADS")}
+"""The environment of a local dask cluster's workers: one worker a core, one thread each
+(the compiled simulations and BLAS would otherwise start a thread a core in every worker
+and contend; joblib's own processes limit them the same way)."""
 
 
 def check_backend(backend: str, scheduler: str | None = None, where: str = "backend") -> None:
@@ -57,7 +64,8 @@ def engine(backend: str = "loky", scheduler: str | None = None) -> Iterator[None
         except ImportError as exc:
             raise CvxidError('backend = "dask" needs dask.distributed: pip install "cvxid[distributed]"') from exc
         try:
-            client = Client(scheduler) if scheduler else Client()
+            client = Client(scheduler) if scheduler else Client(
+                n_workers=os.cpu_count() or 1, threads_per_worker=1, env=ONE_THREAD, dashboard_address=None)
         except (OSError, TimeoutError) as exc:
             raise CvxidError(f"cannot reach the dask scheduler at '{scheduler}' ({exc}); start one "
                              "(`dask scheduler`) or leave scheduler out for a local cluster") from exc
