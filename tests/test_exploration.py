@@ -104,3 +104,19 @@ def test_paper_algorithm1_picks_order_3_with_stable_inclusion():
             assert share >= 0.9, name
         else:
             assert share <= 0.2, name
+
+
+def test_clarabel_on_the_canonical_data_answers_as_cvxpy_does(sparse):
+    """Each lambda solved by Clarabel on the data cvxpy canonicalised once equals cvxpy's
+    own solve of the same problem (coefficients, status), signs held."""
+    P, p, _, _, _ = sparse
+    problem = Problem.from_arrays(P, p, list("abcdef"), nonnegative=("c", "e"))
+    for lam in (1e-5, 1e-3, 3e-2, 0.5):
+        ours = problem.solve(lam)
+        problem.lam.value = lam
+        problem.cvxpy.solve(solver="CLARABEL", warm_start=False)
+        assert problem.cvxpy.status == "optimal" and ours.status == "optimal"
+        theirs = problem._finish(lam, problem._full(problem.c.value), "optimal", 0.0)
+        assert ours.objective <= theirs.objective * (1 + 1e-7)
+        np.testing.assert_allclose(ours.scaled, theirs.scaled, atol=1e-6)
+        assert ours.scaled[2] >= 0 and ours.scaled[4] >= 0

@@ -127,7 +127,7 @@ class Problem:
             self.constraints[f"c[{a}] = {f:g} c[{b}]"] = self.c[index[a]] == _tie_factor(self.reduced, self.names, a, b, f) * self.c[index[b]]
         self.cvxpy = cp.Problem(cp.Minimize(self.objective), list(self.constraints.values()))
         self.regression: Regression | None = None  # the rows behind the factor, when known
-        self._canonical: CanonicalClarabel | None = None  # built at the first Clarabel solve
+        self._canonical: CanonicalClarabel | bool | None = None  # at the first Clarabel solve (False: cvxpy's)
 
     def _full(self, rest: np.ndarray) -> np.ndarray:
         """All scaled coefficients from the solved ones (the projected-out ones recovered)."""
@@ -173,9 +173,9 @@ class Problem:
             with warnings.catch_warnings():
                 # cvxpy's own "may be inaccurate" warning: the status is checked by solve()
                 warnings.filterwarnings("ignore", message="Solution may be inaccurate")
-                if solver == "CLARABEL":
-                    if self._canonical is None:
-                        self._canonical = CanonicalClarabel(self.cvxpy, self.lam)
+                if solver == "CLARABEL" and self._canonical is None:
+                    self._canonical = CanonicalClarabel.of(self.cvxpy, self.lam)
+                if solver == "CLARABEL" and self._canonical:
                     self._canonical.solve(float(self.lam.value), settings)
                 else:
                     self.cvxpy.solve(solver=solver, warm_start=False, **settings)
@@ -321,10 +321,20 @@ class CanonicalClarabel:
     order 4).  What is saved is cvxpy's work per solve, most of a small problem's time.
     """
 
+    @classmethod
+    def of(cls, problem: cp.Problem, lam: cp.Parameter) -> "CanonicalClarabel | bool":
+        r"""The canonical form, or False when :math:`\lambda` moves more than the linear
+        cost (then cvxpy solves the problem itself)."""
+        try:
+            return cls(problem, lam)
+        except ValueError:
+            return False
+
     def __init__(self, problem: cp.Problem, lam: cp.Parameter):
         from cvxpy.reductions.solvers.conic_solvers.clarabel_conif import dims_to_solver_cones
+        from cvxpy.reductions.solvers.conic_solvers.conic_solver import ConicSolver
 
-        self.problem, self.lam = problem, lam
+        self.problem = problem
         kept = lam.value
         lam.value = 0.0
         data, self.chain, self.inverse = problem.get_problem_data(cp.CLARABEL)
@@ -335,11 +345,11 @@ class CanonicalClarabel:
         self.dq = np.asarray(one["c"], float) - self.q0
         same = all((abs(data[k] - one[k]).max() if data[k].size else 0.0) == 0.0 for k in ("A", "P") if k in data)
         if not same or not np.array_equal(data["b"], one["b"]):
-            raise CvxidError("lambda moves more than the linear cost of this problem; solve it through cvxpy")
+            raise ValueError("lambda moves more than the linear cost of this problem")
         n = self.q0.size
         self.P = sp.triu(data["P"] if "P" in data else sp.csc_array((n, n))).tocsc()
         self.A, self.b = sp.csc_array(data["A"]), np.asarray(data["b"], float)
-        self.cones = dims_to_solver_cones(data[cp.reductions.solvers.conic_solvers.conic_solver.ConicSolver.DIMS])
+        self.cones = dims_to_solver_cones(data[ConicSolver.DIMS])
 
     def solve(self, lam: float, settings: dict) -> None:
         """Solve at ``lam``; the problem's variables and status are set as by ``problem.solve``."""
