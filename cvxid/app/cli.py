@@ -38,7 +38,7 @@ def _run(args) -> int:
         print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
     if args.profile:
         print("\nwhere the seconds went (cumulative; nested stages count in each):")
-        print(table.to_string(float_format=lambda v: f"{v:.2f}"))
+        print(table.to_string(float_format=lambda v: f"{v:.3f}"))
     return 0
 
 
