@@ -80,7 +80,12 @@ def engine(backend: str = "loky", scheduler: str | None = None) -> Iterator[None
             from ray.util.joblib import register_ray
         except ImportError as exc:
             raise CvxidError('backend = "ray" needs Ray: pip install "ray[default]"') from exc
+        started = not ray.is_initialized()
         ray.init(address=scheduler, ignore_reinit_error=True)
         register_ray()
-        with parallel_config(backend="ray"):
-            yield
+        try:
+            with parallel_config(backend="ray"):
+                yield
+        finally:
+            if started:
+                ray.shutdown()

@@ -244,10 +244,7 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     dt = float((t[-1] - t[0]) / (n - 1))
     C, B = mass.shape
     tau = np.broadcast_to(np.asarray(tau, float), (B,))
-    substeps = int(substeps)
-    resolvable = tau[tau >= dt / MAX_SUBSTEPS]
-    if np.any(gain != 0) and resolvable.size:
-        substeps = max(substeps, int(np.ceil(dt / resolvable.min() - 1e-12)))
+    substeps = delay_substeps(tau, dt, int(substeps)) if np.any(gain != 0) else int(substeps)
     h = dt / substeps
     steps = (n - 1) * substeps
     fine = t[0] + 0.5 * h * np.arange(2 * steps + 1)
@@ -274,6 +271,14 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
             "is unstable under this input; check its coefficients"
         )
     return X[::substeps], V[::substeps]
+
+
+def delay_substeps(tau: np.ndarray, dt: float, substeps: int = 1) -> int:
+    """Sub-steps per sample of a batch whose fed-back delays are ``tau``: at least one step
+    per shortest resolvable delay (shorter than ``dt / MAX_SUBSTEPS`` acts at once)."""
+    tau = np.atleast_1d(np.asarray(tau, float))
+    resolvable = tau[tau >= dt / MAX_SUBSTEPS]
+    return max(substeps, int(np.ceil(dt / resolvable.min() - 1e-12))) if resolvable.size else substeps
 
 
 def _past_nodes(history: str, past: Past | None, start: float, tau: np.ndarray, h: float,

@@ -85,3 +85,17 @@ def test_coulomb_friction_sticks_below_its_bound_and_slides_above():
     assert np.max(np.abs(x)) < 1e-6 and np.max(np.abs(v)) < 1e-3
     x, v = simulate(friction, t, np.full_like(t, 3.0), 0.0, 0.0)
     assert v[-1] == pytest.approx((3.0 - 1.0) / 2.0 * t[-1], rel=1e-3)
+
+
+def test_a_batch_reaching_a_shorter_delay_integrates_in_more_substeps_and_the_jacobian_knows():
+    """The shortest delay of a batch sets its sub-steps: the output-error Jacobian reuses
+    the solver's own residual only when its batch integrates the same way (else the
+    finite differences would mix two discretisations)."""
+    from cvxid.simulate import delay_substeps
+
+    dt = 4e-3
+    tau = dt / 2 * (1 + 3e-6)  # just above dt/2: two sub-steps alone
+    assert delay_substeps([tau], dt) == 2
+    assert delay_substeps([tau, tau * (1 - 1e-5)], dt) == 3  # its central difference needs three
+    assert delay_substeps([0.15, 0.15 * (1 - 1e-5)], dt) == 1
+    assert delay_substeps([dt / 100], dt) == 1  # below dt / 16 a delay acts at once

@@ -69,3 +69,16 @@ def test_ties_eliminated_give_the_cvxpy_solution_with_chains_and_signs(monkeypat
         a, b, c, d, e, _ = eliminated
         assert a == pytest.approx(2 * b, rel=1e-12) and b == pytest.approx(-0.5 * c, rel=1e-12)
         assert d == pytest.approx(3 * e, rel=1e-12) and c >= 0 and d >= 0
+
+
+def test_a_chain_of_ties_holds_whatever_the_order_it_is_written_in():
+    """A tie keeps both of its columns: along a chain b = 2 c, a = 3 b with only a on the
+    support, all three are refitted (the order of the ties does not matter)."""
+    rng = np.random.default_rng(5)
+    P = rng.standard_normal((200, 3))
+    y = P @ np.array([6.0, 2.0, 1.0]) + 0.01 * rng.standard_normal(200)
+    for ties in ([("b", "c", 2.0), ("a", "b", 3.0)], [("a", "b", 3.0), ("b", "c", 2.0)]):
+        problem = Problem.from_arrays(P, y, list("abc"), ties=ties)
+        a, b, c = problem.refit(np.array([True, False, False])).coefficients
+        assert a == pytest.approx(3 * b, rel=1e-10) and b == pytest.approx(2 * c, rel=1e-10)
+        assert c == pytest.approx(1.0, rel=0.01)

@@ -80,16 +80,21 @@ def _problems(args) -> int:
 
 
 def _bench(args) -> int:
-    if args.heldout:
-        return _heldout(args)
-    if args.long:
-        return _long(args)
-    if args.accuracy:
-        return _accuracy(args)
-    from cvxid.tools.bench import run_bench
+    from cvxid.parallel import engine
 
-    run_bench(args.spec, args.order, args.naive_lambdas, args.json, args.jobs)
-    return 0
+    if args.long and (args.backend or args.scheduler):
+        raise CvxidError("--long runs each record in a fresh process on this machine: drop --backend/--scheduler")
+    with engine(args.backend or "loky", args.scheduler):
+        if args.heldout:
+            return _heldout(args)
+        if args.long:
+            return _long(args)
+        if args.accuracy:
+            return _accuracy(args)
+        from cvxid.tools.bench import run_bench
+
+        run_bench(args.spec, args.order, args.naive_lambdas, args.json, args.jobs)
+        return 0
 
 
 def _accuracy(args) -> int:
@@ -155,7 +160,6 @@ def _heldout(args) -> int:
     import pandas as pd
 
     from cvxid.app.report import plain
-    from cvxid.parallel import engine
     from cvxid.tools.heldout import EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
@@ -165,9 +169,8 @@ def _heldout(args) -> int:
     noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
     lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
     start = time.perf_counter()
-    with engine(args.backend or "loky", args.scheduler):
-        frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
-                           for length in lengths], ignore_index=True)
+    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
+                       for length in lengths], ignore_index=True)
     wall = time.perf_counter() - start
     by = ("duration", "effect", "noise") if len(lengths) > 1 else ("effect", "noise")
     table = summary(frame, by)

@@ -55,7 +55,7 @@ from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.regression.builder import usable_segments
-from cvxid.simulate import SimulationDiverged, half_steps, integrate, substeps_for
+from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integrate, substeps_for
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
@@ -285,6 +285,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
         steps = np.diag(h)
         here = cache.get(theta.tobytes())  # the solver asks at the point it has just evaluated
+        if here is not None and not problem.same_steps(theta, theta - steps[central]):
+            here = None  # the batch reaches a shorter delay, integrated in more sub-steps
         if here is None:
             r = problem.residuals(np.vstack([theta, theta + steps, theta - steps[central]]))
         else:
@@ -439,6 +441,16 @@ class _Problem:
             warnings.warn("the output-error polish started outside its bounds: " + ", ".join(moved)
                           + "; the equation-error estimate it starts from is far off (check the model and the data)",
                           CvxidWarning, stacklevel=3)
+
+    def same_steps(self, theta: np.ndarray, others: np.ndarray) -> bool:
+        """Whether a batch of ``theta`` and ``others`` integrates every experiment in the
+        sub-steps ``theta`` alone does (the shortest delay of a batch sets them)."""
+        if self.delay is None or self.fixed_tau is not None:
+            return True
+        i = self.names.index("tau")
+        taus = np.maximum(np.r_[theta[i], others[:, i]], 0.0)
+        return all(delay_substeps(taus[:1], e.dt * self.stride, n) == delay_substeps(taus, e.dt * self.stride, n)
+                   for e, n in zip(self.experiments, self.substeps))
 
     def _name(self, label: str, physical: str, column: str) -> str:
         return physical if self.one else f"{label}:{column}"

@@ -437,9 +437,13 @@ def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), tie
     :func:`_tied_bounded_least_squares`; a small cvxpy problem where they cannot be).  A tie keeps both of its columns or neither."""
     names = tuple(names)
     mask = np.array(mask, dtype=bool)
-    for a, b, _ in ties:
-        ia, ib = names.index(a), names.index(b)
-        mask[ia] = mask[ib] = mask[ia] or mask[ib]
+    spread = True
+    while spread:  # a tie keeps both of its columns, along chains of ties in any order
+        spread = False
+        for a, b, _ in ties:
+            ia, ib = names.index(a), names.index(b)
+            if mask[ia] != mask[ib]:
+                mask[ia] = mask[ib] = spread = True
     ties = [t for t in ties if mask[names.index(t[0])]]  # a tie of two columns off the support holds at zero
     idx = np.flatnonzero(mask)
     lower = np.array([0.0 if names[i] in nonnegative else -np.inf for i in idx])

@@ -96,11 +96,13 @@ def savgol_window(y: np.ndarray, polyorder: int = 3) -> int:
     :data:`REMEMBERED` signals (a run asks again for the same record many times)."""
     y = np.ascontiguousarray(y, float)
     key = (hashlib.blake2b(y.tobytes(), digest_size=16).digest(), polyorder)
-    if key not in _windows:
+    window = _windows.get(key)
+    if window is None:  # (safe in threads: nothing read back that another may evict)
+        window = _savgol_window(y, polyorder)
         if len(_windows) >= REMEMBERED:
-            _windows.pop(next(iter(_windows)))
-        _windows[key] = _savgol_window(y, polyorder)
-    return _windows[key]
+            _windows.pop(next(iter(_windows), None), None)
+        _windows[key] = window
+    return window
 
 
 REMEMBERED = 64

@@ -141,7 +141,6 @@ class FitSettings:
     window: float | str = "auto"
     loss: str = "squared"
     allow_large: bool = False  # jobs above MAX_SOLVES, builds above the memory available
-    n_jobs: int = 1  # joblib workers (bootstrap, order search)
     backend: str = "loky"  # where joblib's work runs (cvxid.parallel)
     scheduler: str | None = None  # a dask or ray cluster's address
 
@@ -484,8 +483,8 @@ def _fit(table: Table) -> FitSettings:
     if scheduler is not None:
         scheduler = _string(table, "scheduler", where, "")
     check_backend(backend, scheduler, where=f"spec: [{where}] backend")
+    n_jobs(table)
     settings = FitSettings(
-        n_jobs=n_jobs(table),
         backend=backend,
         scheduler=scheduler,
         estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "lstsq", "stepwise_oe")),
