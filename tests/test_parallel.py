@@ -9,34 +9,20 @@ from cvxid.app.run import run
 from cvxid.errors import CvxidError
 from cvxid.parallel import engine
 from cvxid.spec.load import parse_problem
-from .conftest import TEST_SIMULATED, TRAIN_SIMULATED, cli_error
-
-SPEC = f"""name = "bootstrap_on_a_cluster"
-[truth]
-mass = 1.0
-coefficients = {{ "x'" = 0.4, "x" = 6.0, "x^3" = 2.0 }}
-delay = {{ signal = "x", gain = 1.5, tau = 0.15 }}
-{TRAIN_SIMULATED}
-{TEST_SIMULATED}
-[model.library]
-order = 3
-[model.delay]
-signal = "x"
-gain = 1.5
-method = "exact"
-tau_max = 0.4
-[fit]
-lambdas = {{ min = 1e-5, max = 1e1, count = 12 }}
-bootstrap = {{ samples = 6, fraction = 0.5, seed = 3 }}
-n_jobs = 2
-"""
+from .conftest import cli_error
+from .test_sensor import SIMULATED, spec_text
 
 
 def _spec(tmp_path, **fit):
+    """The sensor tests' delayed oscillator with a cubic stiffness, an order-3 library
+    and a small bootstrap (2 jobs), ``fit`` keys added."""
     import tomllib
 
-    raw = tomllib.loads(SPEC)
-    raw["fit"].update(fit)
+    raw = tomllib.loads(spec_text(SIMULATED))
+    raw["truth"]["coefficients"]["x^3"] = 2.0
+    raw["model"]["library"] = {"order": 3}
+    raw["fit"] = {"lambdas": {"min": 1e-5, "max": 1e1, "count": 12},
+                  "bootstrap": {"samples": 6, "fraction": 0.5, "seed": 3}, "n_jobs": 2, **fit}
     return parse_problem(raw, tmp_path)
 
 
@@ -56,7 +42,7 @@ def test_a_bootstrap_on_a_dask_cluster_gives_the_serial_numbers(tmp_path):
 
 
 def test_an_unknown_engine_is_named_with_the_choices(tmp_path, capsys):
-    err = cli_error(tmp_path, capsys, SPEC.replace('n_jobs = 2', 'backend = "spark"'))
+    err = cli_error(tmp_path, capsys, spec_text(SIMULATED).replace('estimator = "lstsq"', 'backend = "spark"'))
     assert "[fit] backend must be one of loky, threading, dask, ray" in err and "spark" in err
     with pytest.raises(CvxidError, match="needs backend"):
         with engine("loky", "tcp://127.0.0.1:8786"):

@@ -87,10 +87,9 @@ def test_coulomb_friction_sticks_below_its_bound_and_slides_above():
     assert v[-1] == pytest.approx((3.0 - 1.0) / 2.0 * t[-1], rel=1e-3)
 
 
-def test_a_batch_reaching_a_shorter_delay_integrates_in_more_substeps_and_the_jacobian_knows():
-    """The shortest delay of a batch sets its sub-steps: the output-error Jacobian reuses
-    the solver's own residual only when its batch integrates the same way (else the
-    finite differences would mix two discretisations)."""
+def test_the_shortest_delay_of_a_batch_sets_its_substeps():
+    """The rule the integrator and the output-error Jacobian share (the Jacobian reuses the
+    solver's own residual only when its batch, reaching tau - h, integrates the same way)."""
     from cvxid.simulate import delay_substeps
 
     dt = 4e-3

@@ -62,7 +62,8 @@ def measured_past(experiment: Experiment, coordinate: str, derivative: int = 0, 
     y = experiment.output(coordinate)
     w = savgol_window(y)
     n = y.size if until is None else min(y.size, until + w + SPLINE_MARGIN)
-    spline = CubicSpline(experiment.time[:n], savgol_filter(y[:n], min(w, n - (1 - n % 2)), 3, mode="interp"))
+    # (w < n: the window is shorter than a quarter of the record, and the stretch is w longer)
+    spline = CubicSpline(experiment.time[:n], savgol_filter(y[:n], w, 3, mode="interp"))
     return lambda times: (spline(times, derivative), spline(times, derivative + 1))
 
 

@@ -72,6 +72,16 @@ REPEATS = 5
 """Runs of our path and of scikit-learn's; the fastest of each is reported."""
 
 
+def _fastest(job):
+    """``job()`` run :data:`REPEATS` times: the fewest seconds and the last result."""
+    seconds = np.inf
+    for _ in range(REPEATS):
+        start = time.perf_counter()
+        result = job()
+        seconds = min(seconds, time.perf_counter() - start)
+    return seconds, result
+
+
 def _sklearn(problem: Problem, lambdas) -> tuple[float | None, np.ndarray | None]:
     """scikit-learn's lasso_path on the projected, scaled factor (None if not installed)."""
     try:
@@ -79,16 +89,16 @@ def _sklearn(problem: Problem, lambdas) -> tuple[float | None, np.ndarray | None
     except ImportError:
         return None, None
     u = problem._free.size
-    seconds = np.inf
-    for _ in range(REPEATS):
-        start = time.perf_counter()
+
+    def path():
         Q, Rp = np.linalg.qr(problem.reduced.R[:, np.r_[problem._free, problem._rest]])
         rp = Q.T @ problem.reduced.r
         X, y = Rp[u:, u:], rp[u:]
         # ours: (1/N)||Xc - y||^2 + lam |c|_1;  sklearn: (1/(2 n))||Xc - y||^2 + alpha |c|_1
         alphas = np.asarray(lambdas) * problem.reduced.rows / (2 * X.shape[0])
-        _, coefs, _ = lasso_path(X, y, alphas=alphas, tol=1e-10, max_iter=100_000)
-        seconds = min(seconds, time.perf_counter() - start)
+        return lasso_path(X, y, alphas=alphas, tol=1e-10, max_iter=100_000)[1]
+
+    seconds, coefs = _fastest(path)
     return seconds, coefs.T  # one row per alpha (same order as lambdas)
 
 
@@ -101,12 +111,11 @@ def benchmark(spec: ProblemSpec, order: int | None = None, naive_lambdas: int = 
     train = build_regression(model, spec.experiment("train"), velocity)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)
-        path_seconds = np.inf
-        for _ in range(REPEATS):
-            start = time.perf_counter()
+        def ours_path():
             problem = Problem.from_regression(train, model.nonnegative, "CLARABEL")
-            ours = Path.compute(problem, lambdas, debias=False)
-            path_seconds = min(path_seconds, time.perf_counter() - start)
+            return problem, Path.compute(problem, lambdas, debias=False)
+
+        path_seconds, (problem, ours) = _fastest(ours_path)
 
         pick = np.unique(np.linspace(0, len(lambdas) - 1, min(naive_lambdas, len(lambdas))).astype(int))
         naive_seconds, naive = _naive(train, model.nonnegative, lambdas[pick])
