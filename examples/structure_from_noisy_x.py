@@ -12,8 +12,9 @@
 # has a term `x'^3` that needs the velocity.  From noisy x, every velocity estimate leaves
 # an error that the equation-error regression turns into wrong terms.  This script runs,
 # for `SEEDS` noise seeds (default 4), the paper's thresholded least squares (`stlsq`,
-# Savitzky–Golay velocity) and cvxid's selection by simulation error (`stepwise_oe`) on the
-# same data, and prints whether each found the true support and its parameter errors.
+# Savitzky–Golay velocity), cvxid's default convex selection (`adaptive_lasso`) and its
+# selection by simulation error (`stepwise_oe`) on the same data, and prints whether each
+# found the true support and its parameter errors.
 
 # %%
 import os
@@ -38,7 +39,7 @@ def variant(seed, estimator):
 # %%
 rows = []
 for seed in range(1, seeds + 1):
-    for estimator in ("stlsq", "stepwise_oe"):
+    for estimator in ("stlsq", "adaptive_lasso", "stepwise_oe"):
         result = cvxid.run(variant(seed, estimator))
         support = set(result.model.support)
         row = {"seed": seed, "estimator": estimator, "true support": support == TRUE,

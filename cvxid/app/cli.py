@@ -160,6 +160,8 @@ def _heldout(args) -> int:
     import pandas as pd
 
     from cvxid.app.report import plain
+    from cvxid.identify.path import SELECTION_RULES
+    from cvxid.spec.problem import SELECTORS
     from cvxid.tools.heldout import EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
@@ -168,13 +170,18 @@ def _heldout(args) -> int:
     effects = tuple(args.effects.split(",")) if args.effects else EFFECTS
     noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
     lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
+    fit = {k: v for k, v in (("estimator", args.estimator), ("selection", args.selection)) if v}
+    for key, choices in (("estimator", SELECTORS), ("selection", SELECTION_RULES)):
+        if key in fit and fit[key] not in choices:
+            raise CvxidError(f"--{key} must be one of {', '.join(choices)}, got '{fit[key]}'")
     start = time.perf_counter()
-    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain)
+    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain, fit)
                        for length in lengths], ignore_index=True)
     wall = time.perf_counter() - start
     by = ("duration", "effect", "noise") if len(lengths) > 1 else ("effect", "noise")
     table = summary(frame, by)
     print(f"cvxid bench --heldout: seeds {args.seeds or '1000:1010'}, {args.mode} mode, "
+          f"{', '.join(f'{k} {v}' for k, v in fit.items()) + ', ' if fit else ''}"
           f"{len(frame)} systems in {wall:.0f} s ({args.jobs} jobs)")
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
     if args.mode == "diagnosis":
@@ -242,8 +249,13 @@ def main(argv=None) -> int:
     p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all)")
     p_bench.add_argument("--duration", default=None,
                          help="record seconds, or several (20,200) to compare the same systems (--heldout, default drawn)")
-    p_bench.add_argument("--mode", default="structure", choices=("structure", "diagnosis"),
-                         help="true terms given, or a base library diagnosed (--heldout)")
+    p_bench.add_argument("--mode", default="structure", choices=("structure", "diagnosis", "selection"),
+                         help="true terms given, a base library diagnosed, or the terms selected from an "
+                              "18-term library (--heldout)")
+    p_bench.add_argument("--estimator", default=None,
+                         help="the specs' [fit] estimator (--heldout; default: the documented default)")
+    p_bench.add_argument("--selection", default=None,
+                         help="the specs' [fit] selection rule (--heldout; default: the documented default)")
     p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
     p_bench.add_argument("--keep", default=None, help="keep each system's data, spec and result.json here (--heldout)")
     p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")

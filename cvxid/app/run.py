@@ -38,7 +38,7 @@ from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
-from cvxid.identify.path import Path
+from cvxid.identify.path import Path, select
 from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
@@ -117,6 +117,12 @@ def _warn_implausible(out: RunResult) -> None:
         return
     candidates = out.problem.penalties > 0
     chosen = np.array([out.system.coefficients.get(n, 0.0) != 0 for n in out.problem.names])
+    if candidates.any() and candidates.sum() > 2 and (chosen | ~candidates).all() and out.lam <= out.path.lambdas.min():
+        warnings.warn(
+            f"the selection kept every one of the {int(candidates.sum())} candidate terms: lambda = {out.lam:.3g} is "
+            "the bottom of its grid, so the validation error was least with no term dropped; the data do not tell "
+            "which terms are needed (give a longer or richer record, a test record, selection = \"1se\", or fewer "
+            "candidates)", CvxidWarning, stacklevel=2)
     if candidates.any() and not (chosen & candidates).any() and out.lam >= out.path.lambdas.max():
         warnings.warn(
             f"the selection dropped every candidate term: lambda = {out.lam:.3g} is the top of its grid, so the "
@@ -211,9 +217,12 @@ def _identify(spec) -> RunResult:
     problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
     # lambda by the test error, or without a test experiment by blocked cross-validation over time
     folds = CV_FOLDS if validation is None and fit.estimator != "lstsq" else None
-    path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, estimator=fit.estimator,
-                        debias=fit.debias, folds=folds)
-    best = path.fits[-1] if fit.estimator == "lstsq" else path.best(fit.selection)  # (lstsq: every fit is one)
+    if fit.estimator == "lstsq":  # every fit is one: least squares on every column
+        path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, "lstsq")
+        best = path.fits[-1]
+    else:
+        path, best = select(problem, fit.lambdas, validation.residual if validation else None, fit.estimator,
+                            fit.debias, folds, fit.selection)
     keep = best.support | (problem.penalties == 0)
     coefs = dict(zip(problem.names, np.where(keep, best.coefficients, 0.0)))
     if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)

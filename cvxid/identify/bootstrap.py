@@ -20,7 +20,7 @@ import pandas as pd
 from joblib import Parallel, delayed
 
 from cvxid.errors import CvxidError
-from cvxid.identify.path import Path
+from cvxid.identify.path import select
 from cvxid.identify.problem import Problem
 from cvxid.progress import progress
 from cvxid.regression.regression import Regression
@@ -100,8 +100,7 @@ def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, esti
         oob = counts == 0
         P, p = regression.P[oob], regression.p[oob]
         validate = lambda c: P @ c - p  # noqa: E731
-    path = Path.compute(problem, lambdas, validate, estimator=estimator, debias=debias)
-    fit = path.best(selection)
+    _, fit = select(problem, lambdas, validate, estimator, debias, rule=selection)
     coefs = np.where(fit.support | (problem.penalties == 0), fit.coefficients, 0.0)
     return coefs, fit.lam
 

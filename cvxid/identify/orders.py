@@ -27,7 +27,7 @@ import pandas as pd
 
 from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import Bootstrap, BootstrapSettings, bootstrap
-from cvxid.identify.path import Path
+from cvxid.identify.path import select
 from cvxid.identify.problem import Problem
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import Library
@@ -94,7 +94,7 @@ def search_orders(
             ensembles[order] = ens
         else:
             problem = Problem.from_regression(tr, model.nonnegative, solver)
-            best = Path.compute(problem, lambdas, te.residual, estimator, debias).best(selection)
+            _, best = select(problem, lambdas, te.residual, estimator, debias, rule=selection)
             coef = np.where(best.support | (problem.penalties == 0), best.coefficients, 0.0)
         n = tr.shape[0]
         k = int(np.count_nonzero(coef))

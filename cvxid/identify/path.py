@@ -9,19 +9,26 @@ on the training data and, when a validation function is given, on held-out data.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
 import pandas as pd
 
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.problem import Fit, Problem
 from cvxid.identify.stlsq import stlsq
 
-ESTIMATORS = ("lasso", "stlsq", "lstsq")
-"""Selectors along a path; ``lstsq`` selects nothing: every column at every lambda."""
+ESTIMATORS = ("lasso", "adaptive_lasso", "stlsq", "lstsq")
+"""Selectors along a path: the weighted lasso, the lasso with adaptive weights
+(:meth:`~cvxid.identify.problem.Problem.adaptive`, from the least squares of the rows it is
+given: each cross-validation fold weighs its own), thresholded least squares; ``lstsq``
+selects nothing: every column at every lambda."""
 SELECTION_RULES = ("min", "1se")
+EXTEND_DECADES = 2.0
+"""How far past its edge a grid is extended when the rule chose that edge (:func:`select`)."""
+EXTENSIONS = 3
 BLOCKS = 20
 """Contiguous blocks of validation residuals used for the standard error (residuals of
 neighbouring samples are strongly correlated, so single samples would understate it)."""
@@ -31,6 +38,8 @@ def _sweep(problem: Problem, lambdas: np.ndarray, estimator: str, debias: bool) 
     if estimator == "lstsq":
         fit = problem.refit(np.ones(problem.k, dtype=bool))
         return [replace(fit, lam=float(lam)) for lam in lambdas]
+    if estimator == "adaptive_lasso":
+        problem = problem.adaptive()
     fits = []
     for lam in lambdas:
         if estimator == "stlsq":
@@ -155,6 +164,10 @@ class Path:
         ``"1se"``: the largest lambda whose validation error is within one standard error of
         the least (the sparsest model the data cannot tell apart from the best).
         """
+        return self.fits[int(self._accepted(rule)[0])]
+
+    def _accepted(self, rule: str) -> np.ndarray:
+        """Indices (largest lambda first) whose validation error the rule accepts."""
         if rule not in SELECTION_RULES:
             raise CvxidError(f"unknown selection rule '{rule}'; use one of {', '.join(SELECTION_RULES)}")
         if np.all(np.isnan(self.validation)):
@@ -163,8 +176,59 @@ class Path:
         bound = self.validation[i] * (1 + 1e-9)
         if rule == "1se":
             bound += self.validation_se[i]
-        ok = np.flatnonzero(self.validation <= bound)
-        return self.fits[int(ok[0])]
+        return np.flatnonzero(self.validation <= bound)
+
+    def open_edge(self, rule: str = "min") -> str | None:
+        """Where the rule's choice may lie beyond the grid: ``"top"`` when it accepts the
+        largest lambda and that fit keeps a candidate (penalised) term, ``"bottom"`` when it
+        accepts the smallest lambda and that fit leaves a candidate out; else None (the
+        accepted lambdas are interior, or reach an edge where the path ends)."""
+        candidates = self.problem.penalties > 0
+        if not candidates.any() or len(self.fits) < 2:
+            return None
+        ok = self._accepted(rule)
+        if ok[0] == 0 and (self.fits[0].support & candidates).any():
+            return "top"
+        if ok[-1] == len(self.fits) - 1 and not self.fits[-1].support[candidates].all():
+            return "bottom"
+        return None
 
     def __repr__(self) -> str:
         return f"Path over {len(self.fits)} lambdas\n{self.table().to_string(float_format=lambda v: f'{v:.4g}')}"
+
+
+def select(problem: Problem, lambdas, validate: Callable[[np.ndarray], np.ndarray] | None = None,
+           estimator: str = "lasso", debias: bool = True, folds: int | None = None,
+           rule: str = "min") -> tuple[Path, Fit]:
+    """The path and the fit its ``rule`` selects, the grid extended by
+    :data:`EXTEND_DECADES` (at most :data:`EXTENSIONS` times) while the rule accepts an
+    *open* edge of it (:meth:`Path.open_edge`): the largest lambda with a candidate term
+    still in, or the smallest with a candidate still out.  An edge that ends the path (no
+    candidate left at the top, every one in at the bottom) is a real answer, not the grid's
+    limit.  A warning says when the rule still chose an open edge after the last extension."""
+    lambdas = np.sort(np.asarray(lambdas, dtype=float))[::-1]
+    for extension in range(EXTENSIONS + 1):
+        path = Path.compute(problem, lambdas, validate, estimator, debias, folds)
+        side = None if estimator == "lstsq" else path.open_edge(rule)
+        if side is None:
+            return path, path.best(rule)
+        if extension < EXTENSIONS:
+            lambdas = _extended(lambdas, side)
+    best = path.best(rule)
+    warnings.warn(
+        f"the lambda rule chose the {side} of its grid (lambda = {best.lam:.3g}) after extending it "
+        f"{EXTENSIONS} times by {EXTEND_DECADES:g} decades: the validation error still falls toward it, so the "
+        f"selection is not settled; give [fit] lambdas a wider range, or check the candidate terms", CvxidWarning,
+        stacklevel=2)
+    return path, best
+
+
+def _extended(lambdas: np.ndarray, side: str) -> np.ndarray:
+    """``lambdas`` (largest first) with :data:`EXTEND_DECADES` more at ``side``, at the
+    grid's own log spacing (a tenth of a decade for a single lambda)."""
+    logs = np.log10(np.maximum(lambdas, 1e-300))
+    step = float(np.median(-np.diff(logs))) if lambdas.size > 1 else 0.1
+    count = max(1, int(np.ceil(EXTEND_DECADES / step)))
+    more = step * np.arange(1, count + 1)
+    added = 10 ** (logs[0] + more) if side == "top" else 10 ** (logs[-1] - more)
+    return np.sort(np.concatenate([lambdas, added]))[::-1]

@@ -62,7 +62,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     equations = _equations(model)
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
-    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "stlsq"))
+    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "adaptive_lasso", "stlsq"))
     fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
     if fit.velocity not in ESTIMATORS + ("measured", "auto"):
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)}, "

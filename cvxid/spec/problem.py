@@ -129,12 +129,12 @@ class Truth:
 
 @dataclass(frozen=True)
 class FitSettings:
-    estimator: str = "lasso"
+    estimator: str = "adaptive_lasso"  # (cvxid bench --heldout --mode selection: it, with 1se, wins)
     lambdas: np.ndarray = field(default_factory=lambda: np.logspace(-6, 2, 50))
     velocity: str = "savgol"
     solver: str = "CLARABEL"
     debias: bool = True
-    selection: str = "min"
+    selection: str = "1se"
     bootstrap: "BootstrapSettings | None" = None
     orders: tuple[int, ...] = ()
     refine: str | None = None
@@ -232,6 +232,8 @@ DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "g
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
               "input_delay"}
+SELECTORS = ("adaptive_lasso", "lasso", "stlsq", "lstsq", "stepwise_oe")
+"""One equation's ``[fit] estimator`` values (the first is the default)."""
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
             "refine", "window", "loss", "allow_large", "backend", "scheduler"}
 
@@ -487,12 +489,12 @@ def _fit(table: Table) -> FitSettings:
     settings = FitSettings(
         backend=backend,
         scheduler=scheduler,
-        estimator=_string(table, "estimator", where, "lasso", choices=("lasso", "stlsq", "lstsq", "stepwise_oe")),
+        estimator=_string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS),
         lambdas=lambdas,
         velocity=velocity,
         solver=solver,
         debias=_bool(table, "debias", where, True),
-        selection=_string(table, "selection", where, "min", choices=SELECTION_RULES),
+        selection=_string(table, "selection", where, "1se", choices=SELECTION_RULES),
         bootstrap=_bootstrap(table),
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,

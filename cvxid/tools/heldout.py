@@ -54,6 +54,9 @@ the documented default range ``[tau_min, tau_max] = [0, 0.5]`` (it contains
 output-error polish, an input delay to estimate with its default bound when the system has
 one, everything else the documented defaults.  Mode ``"diagnosis"``
 starts from ``x, x', x^3`` without the hidden term and adds ``[diagnose] refine = true``.
+Mode ``"selection"`` lists no term: the library is the order-3 polynomial in x and x' plus
+:data:`SELECTION_EXTRA` (18 candidates), and the estimator (the documented default, or the
+one asked for) must select the true ones.
 """
 
 from __future__ import annotations
@@ -73,7 +76,7 @@ from cvxid.app.run import run
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
-from cvxid.model.library import resolve_term
+from cvxid.model.library import Library, resolve_term
 from cvxid.model.terms import parse_term
 from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged, System, simulate
@@ -101,7 +104,11 @@ of its target, in at most ``SCALINGS`` simulations."""
 DECAY_SECONDS, DECAY_WINDOW = 30.0, 5.0
 ATTEMPTS = 50
 BASE_TERMS = ("x", "x'", "x^3")
-MODES = ("structure", "diagnosis")
+MODES = ("structure", "diagnosis", "selection")
+SELECTION_EXTRA = ("coulomb", "quadratic_damping", "offset")
+"""Selection mode's library beyond the order-3 polynomial in x and x' (which holds the
+quadratic stiffness): the catalogue effects a hidden effect may be, the same for every
+system, so the true terms are always candidates and never singled out."""
 
 
 @dataclass(frozen=True)
@@ -303,23 +310,27 @@ def _toml(value) -> str:
     return repr(float(value))
 
 
-def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool = False) -> str:
-    """The TOML spec of ``oscillator`` reading ``train.csv`` and ``test.csv`` beside it."""
+def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool = False,
+              fit: dict | None = None) -> str:
+    """The TOML spec of ``oscillator`` reading ``train.csv`` and ``test.csv`` beside it
+    (``fit``: ``[fit]`` settings beside the polish, e.g. ``{"estimator": "lasso"}``; the
+    documented defaults for the others)."""
     if mode not in MODES:
         raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
     o = oscillator
-    terms = o.terms if mode == "structure" else list(BASE_TERMS)
+    library = {"order": 3, "extra": list(SELECTION_EXTRA)} if mode == "selection" else \
+        {"terms": o.terms if mode == "structure" else list(BASE_TERMS)}
     delay = {"signal": "x", "method": "exact"} | ({"gain": o.gain} if known_gain else {})
     tables = {
         "truth": {"mass": o.mass, "coefficients": dict(o.coefficients),
                   "delay": {"signal": "x", "gain": o.gain, "tau": o.tau}},
         **{f"data.{which}": {"file": f"{which}.csv", "time": "t", "output": "x", "input": "f"}
            for which in ("train", "test")},
-        "model.library": {"terms": terms},
+        "model.library": library,
         "model.delay": delay,
         "model.constraints": {"nonnegative": ["x''"]},
         **({"model.input_delay": {}} if o.input_tau and mode == "structure" else {}),
-        "fit": {"refine": "output_error"},
+        "fit": {"refine": "output_error", **(fit or {})},
         **({"diagnose": {"refine": True}} if mode == "diagnosis" else {}),
         **({"diagnose.effects": {"stribeck": next(n for n, _ in o.coefficients if "exp" in n)}}
            if mode == "diagnosis" and o.effect == "stribeck" else {}),
@@ -331,7 +342,8 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
     return "\n".join(lines) + "\n"
 
 
-def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: bool = False) -> Path:
+def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: bool = False,
+          fit: dict | None = None) -> Path:
     """Write ``train.csv``, ``test.csv`` (columns t, x, f) and ``spec.toml`` into ``folder``;
     the spec's path."""
     folder = Path(folder)
@@ -341,7 +353,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
         np.savetxt(folder / f"{which}.csv", np.column_stack([e.time, e.output("x"), e.input("f")]), fmt="%.10g",
                    delimiter=",", header="t,x,f", comments="")
     path = folder / "spec.toml"
-    path.write_text(spec_text(oscillator, mode, known_gain), encoding="utf-8")
+    path.write_text(spec_text(oscillator, mode, known_gain, fit), encoding="utf-8")
     return path
 
 
@@ -349,6 +361,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
 TRAILING = ["worst other %", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added", "added by simulation"]
+SELECTION = ["support recovered", "missed", "spurious"]
 
 
 def _error(estimate: float, truth: float) -> float:
@@ -385,8 +398,22 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
     }
 
 
+def selection_library() -> list[str]:
+    """Selection mode's candidate terms (see :data:`SELECTION_EXTRA`)."""
+    return Library.polynomial(3).names + [resolve_term(e).name for e in SELECTION_EXTRA]
+
+
+def _selected(result: dict, oscillator: Oscillator) -> dict:
+    """Selection mode: whether the run kept exactly the true terms, and which it missed or
+    added."""
+    kept = {n for n in selection_library() if result["coefficients"].get(n, 0.0) != 0.0}
+    true = set(oscillator.terms)
+    return {"support recovered": kept == true, "missed": ",".join(sorted(true - kept)),
+            "spurious": ",".join(sorted(kept - true))}
+
+
 def run_one(seed: int, effect: str, noise: float | None = None, duration: float | None = None,
-            mode: str = "structure", known_gain: bool = False, keep=None) -> dict:
+            mode: str = "structure", known_gain: bool = False, keep=None, fit: dict | None = None) -> dict:
     """One system drawn, written and identified by :func:`cvxid.app.run.run`: its row of
     :func:`heldout`.  Never raises: a failure is a row with ``status = "failed"`` and the
     exception's type and message.  ``keep``: a folder that keeps each system's files and
@@ -400,45 +427,53 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
                         "true tau": oscillator.tau})
             name = f"{seed}_{oscillator.effect}_{oscillator.noise:g}_{oscillator.duration:.4g}s"
             folder = Path(keep) / name if keep else Path(scratch)
-            result = run(write(oscillator, folder, mode, known_gain)).to_dict()
+            result = run(write(oscillator, folder, mode, known_gain, fit)).to_dict()
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
             row.update(_row(result, oscillator, known_gain))
+            if mode == "selection":
+                row.update(_selected(result, oscillator))
         except Exception as exc:  # noqa: BLE001  (one system's failure is its row, not the benchmark's)
             row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
     return row
 
 
 def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = None, mode: str = "structure",
-            n_jobs: int = 2, keep=None, known_gain: bool = False) -> pd.DataFrame:
+            n_jobs: int = 2, keep=None, known_gain: bool = False, fit: dict | None = None) -> pd.DataFrame:
     """Every (seed, effect, noise) drawn and identified, ``n_jobs`` at a time (joblib); one
     row per system.  A noise or ``duration`` of None is drawn.
 
     Columns: seed, effect, noise, duration, kind (of the training forcing), true tau, tau,
     tau error %, the tau interval (low, high, covers), ``err % <parameter>`` for every
     physical parameter (``m``, term names, ``gain``), worst other %, seconds (of the run),
-    status, error; in diagnosis mode also the first ranked effect and the effects added.
+    status, error; in diagnosis mode also the first ranked effect and the effects added; in
+    selection mode whether the true support was recovered, the terms missed and the spurious
+    ones.  ``fit``: ``[fit]`` settings for every spec (see :func:`spec_text`).
     """
     if mode not in MODES:
         raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
     cases = [(s, e, n) for s in seeds for e in effects for n in noises]
-    jobs = (delayed(run_one)(s, e, n, duration, mode, known_gain, keep) for s, e, n in cases)
+    jobs = (delayed(run_one)(s, e, n, duration, mode, known_gain, keep, fit) for s, e, n in cases)
     rows = list(progress(Parallel(n_jobs=n_jobs, return_as="generator")(jobs), desc="heldout", total=len(cases)))
     frame = pd.DataFrame(rows)
     middle = sorted(c for c in frame.columns if c.startswith("err % "))
-    return frame.reindex(columns=LEADING + middle + TRAILING + (DIAGNOSIS if mode == "diagnosis" else []))
+    extra = {"diagnosis": DIAGNOSIS, "selection": SELECTION}.get(mode, [])
+    return frame.reindex(columns=LEADING + middle + TRAILING + extra)
 
 
 def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
     """Per group: systems, failures, median and 90th percentile of |tau error| %, median
     worst other %, the share of tau intervals that cover the truth (%), for a late input
-    the median |tau_u error| % and its intervals' coverage, and median seconds."""
+    the median |tau_u error| % and its intervals' coverage, in selection mode the share of
+    systems whose true support was recovered (%), and median seconds."""
     frame = frame.assign(failed=frame["status"] != "ok", abs_tau=frame["tau error %"].abs(),
                          covered=frame["covers"].astype(float), abs_tau_u=frame["tau_u error %"].abs(),
-                         covered_u=frame["tau_u covers"].astype(float))
+                         covered_u=frame["tau_u covers"].astype(float),
+                         recovered=frame.get("support recovered", pd.Series(np.nan, frame.index)).astype(float))
     ok = frame[~frame["failed"]].groupby(list(by), sort=False)
     late = {"|tau_u err| % median": ok["abs_tau_u"].median(), "tau_u covers %": 100 * ok["covered_u"].mean()} \
         if frame["abs_tau_u"].notna().any() else {}
+    support = {"support recovered %": 100 * ok["recovered"].mean()} if "support recovered" in frame else {}
     return pd.DataFrame({
         "systems": frame.groupby(list(by), sort=False).size(),
         "failures": frame.groupby(list(by), sort=False)["failed"].sum(),
@@ -447,6 +482,7 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
         "worst other % median": ok["worst other %"].median(),
         "covers %": 100 * ok["covered"].mean(),
         **late,
+        **support,
         "seconds median": ok["seconds"].median(),
     })
 

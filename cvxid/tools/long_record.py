@@ -6,7 +6,7 @@ Each row writes a linear oscillator
 
 sampled at 1 kHz (a six-sine multisine force, white noise 0.001 on :math:`x` and
 :math:`f`, a start in mid-motion) as a CSV of ``samples`` rows, runs ``cvxid run`` on it in
-a fresh process with the documented defaults (a polynomial library of order 3, the lasso
+a fresh process with the documented defaults (a polynomial library of order 3, the adaptive lasso
 with λ by blocked cross-validation, windows ``"auto"``) and reads the process's wall time
 and peak resident memory (``os.wait4``) and the identified parameters from ``result.json``.
 The baseline in the same run is the paper's whole-record integrals (``window = "record"``),

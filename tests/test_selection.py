@@ -1,0 +1,103 @@
+"""Selecting terms on a λ path: the adaptive lasso's weights and the support they restore,
+a grid extended past an open edge (or a warning), and the held-out benchmark's selection
+mode."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+import cvxid.identify.path as path_module
+from cvxid import Path, Problem
+from cvxid.errors import CvxidWarning
+from cvxid.identify.path import select
+from cvxid.spec.load import load_problem
+from cvxid.tools.heldout import _selected, draw, selection_library, write
+
+
+def _irrepresentable(seed: int, a: float = 0.66, n: int = 2000):
+    """``y = x1 + x2`` and a third column ``a (x1 + x2) + noise`` that correlates with
+    both more than they with each other (``2 a > 1``: the lasso's irrepresentable condition
+    fails, so its path may never hold {x1, x2} alone)."""
+    rng = np.random.default_rng(seed)
+    x1, x2, e, w = rng.standard_normal((4, n))
+    x3 = a * (x1 + x2) + np.sqrt(1 - 2 * a * a) * e
+    return np.column_stack([x1, x2, x3]), x1 + x2 + 0.1 * w
+
+
+def test_adaptive_weights_divide_by_the_least_squares_size():
+    P, y = _irrepresentable(1)
+    P = np.column_stack([P, np.ones(P.shape[0])])
+    problem = Problem.from_arrays(P, y, ["a", "b", "c", "free"], weights=[1, 1, 1, 0])
+    ls = np.abs(problem.refit(np.ones(4, bool)).scaled)
+    adaptive = problem.adaptive()
+    top = ls[:3].max()
+    assert adaptive.penalties[:3] == pytest.approx(top / ls[:3], rel=1e-12)
+    assert adaptive.penalties[:3].min() == pytest.approx(1.0) and adaptive.penalties[3] == 0.0
+    assert adaptive.penalties[2] > 2.0  # the redundant column (least squares: ~0) is penalised hardest
+
+
+@pytest.mark.parametrize("seed", [0, 7])
+def test_adaptive_lasso_finds_a_support_the_plain_lasso_path_misses(seed):
+    P, y = _irrepresentable(seed)
+    problem = Problem.from_arrays(P, y, ["a", "b", "c"])
+    lambdas = np.logspace(-6, 1, 60)
+    true = (True, True, False)
+    plain = {tuple(f.support) for f in Path.compute(problem, lambdas, estimator="lasso").fits}
+    adaptive = {tuple(f.support) for f in Path.compute(problem, lambdas, estimator="adaptive_lasso").fits}
+    assert true not in plain
+    assert true in adaptive
+
+
+def _weak_term(seed: int = 3, n: int = 4000):
+    """A strong and a weak true term: the weak one enters only at a small lambda."""
+    rng = np.random.default_rng(seed)
+    X = rng.standard_normal((2 * n, 3))
+    y = X[:, 0] + 0.01 * X[:, 1] + 1e-4 * rng.standard_normal(2 * n)
+    problem = Problem.from_arrays(X[:n], y[:n], ["strong", "weak", "spurious"])
+    return problem, (lambda c: X[n:] @ c - y[n:])
+
+
+def test_a_grid_that_ends_above_a_needed_term_is_extended_down():
+    problem, validate = _weak_term()
+    grid = np.logspace(-1, 2, 10)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CvxidWarning)
+        path, best = select(problem, grid, validate)
+    assert best.lam < grid.min()
+    assert list(best.support[:2]) == [True, True]
+    assert best.coefficients[1] == pytest.approx(0.01, rel=1e-2)
+    assert len(path.fits) > grid.size
+
+
+def test_a_grid_edge_still_open_after_the_extensions_is_a_warning(monkeypatch):
+    monkeypatch.setattr(path_module, "EXTENSIONS", 0)
+    problem, validate = _weak_term()
+    with pytest.warns(CvxidWarning, match="chose the bottom of its grid") as caught:
+        _, best = select(problem, np.logspace(-1, 2, 10), validate)
+    assert best.lam >= 0.1 and not best.support[1]
+    assert "lambdas a wider range" in str(caught[0].message)
+
+
+def test_an_edge_where_the_path_ends_is_an_answer_not_an_open_edge():
+    """No candidate left at the top: nothing to gain past it, no extension, no warning."""
+    problem, _ = _weak_term()
+    prefers_nothing = lambda c: np.full(40, 1.0 + np.abs(c[1:]).sum())  # noqa: E731
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CvxidWarning)
+        path, best = select(problem, np.logspace(-2, 2, 12), prefers_nothing)
+    assert len(path.fits) == 12 and best is path.fits[0] and path.open_edge() is None
+    assert not best.support.any()
+
+
+def test_the_selection_mode_lists_no_term_and_scores_the_support(tmp_path):
+    o = draw(5, "coulomb", noise=0.01, duration=6.0)
+    spec = load_problem(write(o, tmp_path, mode="selection", fit={"estimator": "adaptive_lasso"}))
+    names = spec.model.library.names
+    assert set(names) == set(selection_library()) and len(names) == 18
+    assert not spec.model.listed and spec.fit.estimator == "adaptive_lasso"
+    assert set(o.terms) <= set(names)
+    exact = {"coefficients": {n: (1.0 if n in o.terms else 0.0) for n in names}}
+    assert _selected(exact, o) == {"support recovered": True, "missed": "", "spurious": ""}
+    wrong = {"coefficients": {**exact["coefficients"], "x'": 0.0, "x^2 x'": 0.3}}
+    assert _selected(wrong, o) == {"support recovered": False, "missed": "x'", "spurious": "x^2 x'"}
