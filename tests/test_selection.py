@@ -11,6 +11,7 @@ import cvxid.identify.path as path_module
 from cvxid import Path, Problem
 from cvxid.errors import CvxidWarning
 from cvxid.identify.path import select
+from cvxid.app.run import run
 from cvxid.spec.load import load_problem
 from cvxid.tools.heldout import _selected, draw, run_one, selection_library, write
 
@@ -113,3 +114,20 @@ def test_on_a_held_out_system_the_default_finds_the_support_the_plain_lasso_miss
     assert default["status"] == "ok" and default["support recovered"], default
     assert abs(default["tau error %"]) < 2.0 and default["worst other %"] < 5.0
     assert not plain["support recovered"] and plain["spurious"] and not plain["missed"]
+
+
+@pytest.mark.parametrize("seed, effect, stand_in", [(1, "coulomb", "x'^3"), (2, "quadratic_damping", "x'^3")])
+def test_the_diagnosis_selects_the_library_anew_beside_the_effect_it_adds(tmp_path, seed, effect, stand_in):
+    """Tuning seeds, noise 0.01, the order-3 polynomial without the hidden effect's term:
+    the first selection keeps a velocity term standing in for the missing effect; once the
+    diagnosis adds the effect, the library is selected again beside it and the stand-in
+    leaves: the final model has exactly the true terms."""
+    o = draw(seed, effect, 0.01, 8.0)
+    result = run(write(o, tmp_path, mode="selection_diagnosis", known_gain=True))
+    library = set(selection_library())
+    first = next(f for f in result.path.fits if f.lam == result.lam)
+    chosen = {n for n, k in zip(result.path.names, first.support) if k} & library
+    final = {n for n, c in result.system.coefficients.items() if c != 0.0} & library
+    assert stand_in in chosen and chosen != set(o.terms)
+    assert [s.added for s in result.refinement.steps] == [effect]
+    assert final == set(o.terms)

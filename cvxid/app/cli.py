@@ -184,7 +184,7 @@ def _heldout(args) -> int:
           f"{', '.join(f'{k} {v}' for k, v in fit.items()) + ', ' if fit else ''}"
           f"{len(frame)} systems in {wall:.0f} s ({args.jobs} jobs)")
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
-    if args.mode == "diagnosis":
+    if args.mode in ("diagnosis", "selection_diagnosis"):
         print()
         print(confusion(frame).to_string(float_format=lambda v: f"{v:.3g}"))
     if args.systems:
@@ -249,9 +249,10 @@ def main(argv=None) -> int:
     p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all)")
     p_bench.add_argument("--duration", default=None,
                          help="record seconds, or several (20,200) to compare the same systems (--heldout, default drawn)")
-    p_bench.add_argument("--mode", default="structure", choices=("structure", "diagnosis", "selection"),
-                         help="true terms given, a base library diagnosed, or the terms selected from an "
-                              "18-term library (--heldout)")
+    p_bench.add_argument("--mode", default="structure",
+                         choices=("structure", "diagnosis", "selection", "selection_diagnosis"),
+                         help="true terms given, a base library diagnosed, the terms selected from an "
+                              "18-term library, or selected from the order-3 polynomial then diagnosed (--heldout)")
     p_bench.add_argument("--estimator", default=None,
                          help="the specs' [fit] estimator (--heldout; default: the documented default)")
     p_bench.add_argument("--selection", default=None,

@@ -38,7 +38,7 @@ from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
-from cvxid.identify.path import Path, select
+from cvxid.identify.path import SELECTING, Path, Selection, select
 from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
@@ -355,8 +355,10 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     ((label, train_rows),) = rows.builders.items()
     builders = (train_rows, test_rows.builders[label])
     model = out.model
+    fit = spec.fit
+    selection = Selection(fit.estimator, fit.lambdas, fit.selection) if fit.estimator in SELECTING else None
     out.refinement = refine(model, out.train, out.test, settings.candidates, settings.min_improvement, steps,
-                            velocity, window, builders=builders)
+                            velocity, window, builders=builders, selection=selection)
     model = out.refinement.model
     out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(
         model, out.train, out.test, settings.candidates, velocity, window, builders=builders)

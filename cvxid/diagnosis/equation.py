@@ -32,6 +32,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
+from cvxid.identify.path import Selection
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay
 from cvxid.metrics import fit_percent, noise_ceiling_percent
@@ -542,10 +543,16 @@ def refine(
     velocity: str = "savgol",
     window: float | str | None = "auto",
     builders: tuple[RegressionBuilder, RegressionBuilder] | None = None,
+    selection: Selection | None = None,
 ) -> Refinement:
     """Repeat diagnose → add the best effect → refit while the test equation error falls
     by more than ``min_improvement`` (0.2: by 20 %).  ``builders`` of the train and test
-    data may be passed to reuse their columns."""
+    data may be passed to reuse their columns.
+
+    The refit keeps the model's terms and adds the effect's; with a ``selection`` and a
+    library to select from, the library is selected anew beside the effect (kept, as a
+    listed term): a term the first selection dropped may return, and one that only stood in
+    for the missing effect may leave."""
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(model.spec, train, velocity, window, train_rows)
     test_rows = _builder(model.spec, test, velocity, train_rows.window, test_rows)
@@ -569,9 +576,12 @@ def refine(
             new = refit(with_input_delay(model.spec, train), train, support, model.tau, velocity, model.lam, window,
                         train_rows)
         else:
+            term = str(dx.ranking.loc[best, "term"])
             spec2 = with_effect(model.spec, best)
-            new = refit(spec2, train, support + [dx.ranking.loc[best, "term"]], model.tau, velocity, model.lam, window,
-                        train_rows)
+            if selection is not None and any(c.penalty > 0 for c in spec2.columns):
+                spec2 = replace(spec2, listed=spec2.listed + (term,))
+                support = _selected_anew(spec2, model.tau, train_rows, test_rows, selection)
+            new = refit(spec2, train, support + [term], model.tau, velocity, model.lam, window, train_rows)
         after = _test_mse(new, test_rows)
         old_cmp, new_cmp = compare(model, test, initial="record"), compare(new, test, initial="record")
         # accept only when a simulation agrees: the free-run or the k-step-ahead error must
@@ -583,6 +593,14 @@ def refine(
                                 old_cmp.fit_percent, new_cmp.fit_percent))
         model = new
     return Refinement(model, steps, diagnoses)
+
+
+def _selected_anew(spec: ModelSpec, tau: float | None, train_rows: RegressionBuilder, test_rows: RegressionBuilder,
+                   selection: Selection) -> list[str]:
+    """The columns ``selection`` keeps of ``spec`` at the delay ``tau``, scored on the test rows."""
+    problem = Problem.from_regression(train_rows.at(tau, spec), spec.nonnegative)
+    keep = selection.support(problem, test_rows.at(tau, spec).residual)
+    return [n for n, k in zip(problem.names, keep) if k]
 
 
 def _improvement(old: Comparison, new: Comparison) -> float:

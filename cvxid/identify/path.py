@@ -10,7 +10,7 @@ on the training data and, when a validation function is given, on held-out data.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -25,6 +25,8 @@ ESTIMATORS = ("lasso", "adaptive_lasso", "stlsq", "lstsq")
 (:meth:`~cvxid.identify.problem.Problem.adaptive`, from the least squares of the rows it is
 given: each cross-validation fold weighs its own), thresholded least squares; ``lstsq``
 selects nothing: every column at every lambda."""
+SELECTING = ("lasso", "adaptive_lasso", "stlsq")
+"""The estimators that select terms (``lstsq`` keeps every column)."""
 SELECTION_RULES = ("min", "1se")
 EXTEND_DECADES = 2.0
 """How far past its edge a grid is extended when the rule chose that edge (:func:`select`)."""
@@ -232,3 +234,18 @@ def _extended(lambdas: np.ndarray, side: str) -> np.ndarray:
     more = step * np.arange(1, count + 1)
     added = 10 ** (logs[0] + more) if side == "top" else 10 ** (logs[-1] - more)
     return np.sort(np.concatenate([lambdas, added]))[::-1]
+
+
+@dataclass(frozen=True)
+class Selection:
+    """A selector and its lambda rule, to select again elsewhere (the diagnosis selects the
+    library anew beside each effect it adds)."""
+
+    estimator: str = "adaptive_lasso"
+    lambdas: np.ndarray = field(default_factory=lambda: np.logspace(-6, 2, 50))
+    rule: str = "1se"
+
+    def support(self, problem: Problem, validate: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
+        """The columns the selector keeps (a boolean mask, unpenalised columns included)."""
+        _, fit = select(problem, self.lambdas, validate, self.estimator, True, None, self.rule)
+        return fit.support | (problem.penalties == 0)

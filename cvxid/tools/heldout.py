@@ -56,7 +56,10 @@ one, everything else the documented defaults.  Mode ``"diagnosis"``
 starts from ``x, x', x^3`` without the hidden term and adds ``[diagnose] refine = true``.
 Mode ``"selection"`` lists no term: the library is the order-3 polynomial in x and x' plus
 :data:`SELECTION_EXTRA` (18 candidates), and the estimator (the documented default, or the
-one asked for) must select the true ones.
+one asked for) must select the true ones.  Mode ``"selection_diagnosis"``: the order-3
+polynomial alone (15 candidates; a hidden effect's term is not among them, except a
+quadratic stiffness) with ``[diagnose] refine = true``: the selection, then the diagnosis,
+must end on exactly the true terms.
 """
 
 from __future__ import annotations
@@ -104,7 +107,7 @@ of its target, in at most ``SCALINGS`` simulations."""
 DECAY_SECONDS, DECAY_WINDOW = 30.0, 5.0
 ATTEMPTS = 50
 BASE_TERMS = ("x", "x'", "x^3")
-MODES = ("structure", "diagnosis", "selection")
+MODES = ("structure", "diagnosis", "selection", "selection_diagnosis")
 SELECTION_EXTRA = ("coulomb", "quadratic_damping", "offset")
 """Selection mode's library beyond the order-3 polynomial in x and x' (which holds the
 quadratic stiffness): the catalogue effects a hidden effect may be, the same for every
@@ -318,8 +321,8 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
     if mode not in MODES:
         raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
     o = oscillator
-    library = {"order": 3, "extra": list(SELECTION_EXTRA)} if mode == "selection" else \
-        {"terms": o.terms if mode == "structure" else list(BASE_TERMS)}
+    library = {"order": 3, "extra": list(SELECTION_EXTRA)} if mode == "selection" else {"order": 3} \
+        if mode == "selection_diagnosis" else {"terms": o.terms if mode == "structure" else list(BASE_TERMS)}
     delay = {"signal": "x", "method": "exact"} | ({"gain": o.gain} if known_gain else {})
     tables = {
         "truth": {"mass": o.mass, "coefficients": dict(o.coefficients),
@@ -331,7 +334,7 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
         "model.constraints": {"nonnegative": ["x''"]},
         **({"model.input_delay": {}} if o.input_tau and mode == "structure" else {}),
         "fit": {"refine": "output_error", **(fit or {})},
-        **({"diagnose": {"refine": True}} if mode == "diagnosis" else {}),
+        **({"diagnose": {"refine": True}} if mode in ("diagnosis", "selection_diagnosis") else {}),
         **({"diagnose.effects": {"stribeck": next(n for n, _ in o.coefficients if "exp" in n)}}
            if mode == "diagnosis" and o.effect == "stribeck" else {}),
     }
@@ -431,7 +434,7 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
             row.update(_row(result, oscillator, known_gain))
-            if mode == "selection":
+            if mode.startswith("selection"):
                 row.update(_selected(result, oscillator))
         except Exception as exc:  # noqa: BLE001  (one system's failure is its row, not the benchmark's)
             row.update(status="failed", error=f"{type(exc).__name__}: {exc}")
@@ -457,7 +460,7 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
     rows = list(progress(Parallel(n_jobs=n_jobs, return_as="generator")(jobs), desc="heldout", total=len(cases)))
     frame = pd.DataFrame(rows)
     middle = sorted(c for c in frame.columns if c.startswith("err % "))
-    extra = {"diagnosis": DIAGNOSIS, "selection": SELECTION}.get(mode, [])
+    extra = {"diagnosis": DIAGNOSIS, "selection": SELECTION, "selection_diagnosis": SELECTION + DIAGNOSIS}.get(mode, [])
     return frame.reindex(columns=LEADING + middle + TRAILING + extra)
 
 
