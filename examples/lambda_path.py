@@ -31,11 +31,11 @@ problem = cvxid.Problem.from_regression(train, spec.model.nonnegative)
 print(problem)
 
 # %% [markdown]
-# ## Lasso and the paper's thresholding, side by side
+# ## Lasso, adaptive lasso (weights from least squares) and the paper's thresholding, side by side
 
 # %%
 lambdas = np.logspace(-6, 2, 50)
-for estimator in ("lasso", "stlsq"):
+for estimator in ("lasso", "adaptive_lasso", "stlsq"):
     path = cvxid.Path.compute(problem, lambdas, validate=test.residual, estimator=estimator)
     print(f"\n{estimator}: Pareto front (least training error per number of terms)")
     print(path.pareto)
