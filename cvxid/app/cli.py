@@ -162,18 +162,22 @@ def _heldout(args) -> int:
     from cvxid.app.report import plain
     from cvxid.identify.path import SELECTION_RULES
     from cvxid.spec.problem import SELECTORS
-    from cvxid.tools.heldout import EFFECTS, by_duration, confusion, heldout, summary
+    from cvxid.tools.heldout import EFFECTS, SELECTION_EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
         raise CvxidError("--heldout draws its own systems: give no SPEC")
     seeds = _seeds(args.seeds or "1000:1010")
-    effects = tuple(args.effects.split(",")) if args.effects else EFFECTS
+    effects = tuple(args.effects.split(",")) if args.effects else \
+        SELECTION_EFFECTS if args.mode.startswith("selection") else EFFECTS
     noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
     lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
     fit = {k: v for k, v in (("estimator", args.estimator), ("selection", args.selection)) if v}
     for key, choices in (("estimator", SELECTORS), ("selection", SELECTION_RULES)):
         if key in fit and fit[key] not in choices:
             raise CvxidError(f"--{key} must be one of {', '.join(choices)}, got '{fit[key]}'")
+    if fit.get("estimator") == "stepwise_oe" and args.mode != "selection":
+        raise CvxidError("--estimator stepwise_oe selects terms from a library without a diagnosis: use it with "
+                         "--mode selection")
     start = time.perf_counter()
     frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain, fit)
                        for length in lengths], ignore_index=True)
@@ -246,7 +250,8 @@ def main(argv=None) -> int:
     p_bench.add_argument("--noises", default=None,
                          help="noise levels (--accuracy, default 0,0.001,0.01,0.05; --heldout, default drawn)")
     p_bench.add_argument("--heldout", action="store_true", help="random delayed oscillators cvxid's examples lack")
-    p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all)")
+    p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all; the selection modes: those whose "
+                              "terms the library holds)")
     p_bench.add_argument("--duration", default=None,
                          help="record seconds, or several (20,200) to compare the same systems (--heldout, default drawn)")
     p_bench.add_argument("--mode", default="structure",

@@ -100,8 +100,9 @@ def _warn_confounded_gain(out: RunResult) -> None:
 
 
 def _warn_implausible(out: RunResult) -> None:
-    """A model no physical system has, said aloud: a non-positive inertia, or a selection
-    that dropped every candidate term at the top of the lambda grid."""
+    """A model no physical system has, said aloud: a non-positive inertia, a selection that
+    dropped every candidate term at the top of the lambda grid, or one that kept every
+    candidate at its bottom."""
     for label, model in out.system.models.items():
         mass = model.physical.get("m")
         if model.spec.inertia and mass is not None and not mass > 0:
@@ -121,8 +122,8 @@ def _warn_implausible(out: RunResult) -> None:
         warnings.warn(
             f"the selection kept every one of the {int(candidates.sum())} candidate terms: lambda = {out.lam:.3g} is "
             "the bottom of its grid, so the validation error was least with no term dropped; the data do not tell "
-            "which terms are needed (give a longer or richer record, a test record, selection = \"1se\", or fewer "
-            "candidates)", CvxidWarning, stacklevel=2)
+            "which terms are needed (give a longer or richer record, a test record, or fewer candidates)",
+            CvxidWarning, stacklevel=2)
     if candidates.any() and not (chosen & candidates).any() and out.lam >= out.path.lambdas.max():
         warnings.warn(
             f"the selection dropped every candidate term: lambda = {out.lam:.3g} is the top of its grid, so the "

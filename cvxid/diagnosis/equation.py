@@ -578,7 +578,7 @@ def refine(
         else:
             term = str(dx.ranking.loc[best, "term"])
             spec2 = with_effect(model.spec, best)
-            if selection is not None and any(c.penalty > 0 for c in spec2.columns):
+            if selection is not None and any(c.penalty > 0 for c in model.spec.columns):
                 spec2 = replace(spec2, listed=spec2.listed + (term,))
                 support = _selected_anew(spec2, model.tau, train_rows, test_rows, selection)
             new = refit(spec2, train, support + [term], model.tau, velocity, model.lam, window, train_rows)

@@ -181,17 +181,20 @@ class Path:
         return np.flatnonzero(self.validation <= bound)
 
     def open_edge(self, rule: str = "min") -> str | None:
-        """Where the rule's choice may lie beyond the grid: ``"top"`` when it accepts the
-        largest lambda and that fit keeps a candidate (penalised) term, ``"bottom"`` when it
-        accepts the smallest lambda and that fit leaves a candidate out; else None (the
-        accepted lambdas are interior, or reach an edge where the path ends)."""
+        """Where the rule's choice may lie beyond the grid: ``"top"`` when it chooses the
+        largest lambda and that fit keeps a candidate (penalised) term; ``"bottom"`` when the
+        least validation error reaches the smallest lambda (whatever the rule: the 1se rule's
+        reference is that least error) and that fit leaves out a candidate least squares
+        keeps; else None (an interior choice, or an edge where the path ends)."""
         candidates = self.problem.penalties > 0
         if not candidates.any() or len(self.fits) < 2:
             return None
-        ok = self._accepted(rule)
-        if ok[0] == 0 and (self.fits[0].support & candidates).any():
+        if self._accepted(rule)[0] == 0 and (self.fits[0].support & candidates).any():
             return "top"
-        if ok[-1] == len(self.fits) - 1 and not self.fits[-1].support[candidates].all():
+        last = self.fits[-1]
+        full = self.problem.refit(np.ones(self.problem.k, dtype=bool)).support  # least squares' own support
+        if self._accepted("min")[-1] == len(self.fits) - 1 and last.lam > 0 \
+                and (full & ~last.support & candidates).any():
             return "bottom"
         return None
 
@@ -202,16 +205,17 @@ class Path:
 def select(problem: Problem, lambdas, validate: Callable[[np.ndarray], np.ndarray] | None = None,
            estimator: str = "lasso", debias: bool = True, folds: int | None = None,
            rule: str = "min") -> tuple[Path, Fit]:
-    """The path and the fit its ``rule`` selects, the grid extended by
+    """The path and the fit its ``rule`` selects, the grid (duplicates dropped) extended by
     :data:`EXTEND_DECADES` (at most :data:`EXTENSIONS` times) while the rule accepts an
     *open* edge of it (:meth:`Path.open_edge`): the largest lambda with a candidate term
     still in, or the smallest with a candidate still out.  An edge that ends the path (no
     candidate left at the top, every one in at the bottom) is a real answer, not the grid's
-    limit.  A warning says when the rule still chose an open edge after the last extension."""
-    lambdas = np.sort(np.asarray(lambdas, dtype=float))[::-1]
+    limit.  A warning says when the rule still chose an open edge after the last extension.
+    ``stlsq``'s lambda is a threshold on coefficients, not a penalty: its grid is kept."""
+    lambdas = np.unique(np.asarray(lambdas, dtype=float))[::-1]
     for extension in range(EXTENSIONS + 1):
         path = Path.compute(problem, lambdas, validate, estimator, debias, folds)
-        side = None if estimator == "lstsq" else path.open_edge(rule)
+        side = None if estimator in ("lstsq", "stlsq") else path.open_edge(rule)
         if side is None:
             return path, path.best(rule)
         if extension < EXTENSIONS:
@@ -229,7 +233,7 @@ def _extended(lambdas: np.ndarray, side: str) -> np.ndarray:
     """``lambdas`` (largest first) with :data:`EXTEND_DECADES` more at ``side``, at the
     grid's own log spacing (a tenth of a decade for a single lambda)."""
     logs = np.log10(np.maximum(lambdas, 1e-300))
-    step = float(np.median(-np.diff(logs))) if lambdas.size > 1 else 0.1
+    step = max(float(np.median(-np.diff(logs))), 0.01) if lambdas.size > 1 else 0.1
     count = max(1, int(np.ceil(EXTEND_DECADES / step)))
     more = step * np.arange(1, count + 1)
     added = 10 ** (logs[0] + more) if side == "top" else 10 ** (logs[-1] - more)

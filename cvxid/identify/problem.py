@@ -21,7 +21,7 @@ from __future__ import annotations
 import functools
 import time
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import cvxpy as cp
 import numpy as np
@@ -41,6 +41,9 @@ SOLVER_SETTINGS = {
 }
 ADAPTIVE_GAMMA = 1.0
 """The adaptive lasso's exponent: weights ``(max|c| / |c_i|)^gamma`` (:meth:`Problem.adaptive`)."""
+ADAPTIVE_RIDGE = 1e-8
+"""The ridge of the adaptive weights' least squares, per row (columns have unit mean square:
+negligible unless columns are collinear)."""
 ADAPTIVE_MAX_WEIGHT = 1e6
 """The largest ratio ``max|c| / |c_i|`` used: a column a million times weaker than the
 strongest is out at every lambda of the default grid anyway, and larger weights leave the
@@ -296,13 +299,18 @@ class Problem:
 
             w_i^{\text{adaptive}} = w_i \left(\frac{\max_j |\hat c_j|}{|\hat c_i|}\right)^{\gamma},
 
-        :math:`\hat c` the constrained least squares on every column (scaled units), the max
-        over penalised columns.  The strongest column keeps its weight, so the top of the
+        :math:`\hat c` the constrained least squares on every column (scaled units), with a
+        ridge of :data:`ADAPTIVE_RIDGE` times the rows so that exactly collinear columns share
+        their coefficient instead of trading huge opposite ones; the max over penalised
+        columns.  The strongest column keeps its weight, so the top of the
         :math:`\lambda` grid still zeroes every penalised term; weak columns need a small
         :math:`\lambda` to enter.  On collinear libraries the plain lasso's path can miss the
         true support altogether (a correlated wrong term enters first); these weights restore
         it when least squares ranks the columns right (``notes/selection.md``)."""
-        ls = np.abs(self.refit(np.ones(self.k, dtype=bool)).scaled)
+        red = self.reduced
+        Q, R = np.linalg.qr(np.vstack([red.R, np.sqrt(ADAPTIVE_RIDGE * red.rows) * np.eye(self.k)]))
+        ridged = replace(red, R=R, r=Q.T @ np.concatenate([red.r, np.zeros(self.k)]))
+        ls = np.abs(constrained_least_squares(ridged, self.names, np.ones(self.k, bool), self.nonnegative, self.ties))
         penalised = self.penalties > 0
         if not penalised.any():
             return self

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Mapping
 
 from cvxid.errors import CvxidError
+from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
 from cvxid.identified import system_physical
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import resolve_term
@@ -62,7 +63,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     equations = _equations(model)
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
-    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=("lstsq", "lasso", "adaptive_lasso", "stlsq"))
+    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
     fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
     if fit.velocity not in ESTIMATORS + ("measured", "auto"):
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)}, "

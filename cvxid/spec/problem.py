@@ -18,6 +18,7 @@ from cvxid.data.experiment import Experiment, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
+from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
 from cvxid.identify.path import SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
@@ -232,8 +233,8 @@ DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "g
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
               "input_delay"}
-SELECTORS = ("adaptive_lasso", "lasso", "stlsq", "lstsq", "stepwise_oe")
-"""One equation's ``[fit] estimator`` values (the first is the default)."""
+SELECTORS = PATH_ESTIMATORS + ("stepwise_oe",)
+"""One equation's ``[fit] estimator`` values: the path's selectors and the stepwise search."""
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
             "refine", "window", "loss", "allow_large", "backend", "scheduler"}
 

@@ -111,7 +111,10 @@ MODES = ("structure", "diagnosis", "selection", "selection_diagnosis")
 SELECTION_EXTRA = ("coulomb", "quadratic_damping", "offset")
 """Selection mode's library beyond the order-3 polynomial in x and x' (which holds the
 quadratic stiffness): the catalogue effects a hidden effect may be, the same for every
-system, so the true terms are always candidates and never singled out."""
+system, so the true terms of :data:`SELECTION_EFFECTS` are always candidates and never
+singled out.  (A Stribeck friction's decay and a late input are not terms of this library:
+the selection modes leave those effects out by default.)"""
+SELECTION_EFFECTS = ("none", "coulomb", "quadratic_damping", "quadratic_stiffness", "offset")
 
 
 @dataclass(frozen=True)
