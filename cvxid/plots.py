@@ -108,6 +108,27 @@ def refinement_figure(labels, series: dict):
     return fig
 
 
+def responses_figure(labels, comparisons):
+    """One panel per model (``labels``: start, then each added effect): the measured output
+    and the model's free run over the same record, the fit in the panel's title, so that
+    where each effect mattered shows in the response itself."""
+    fig, axes = plt.subplots(len(comparisons), 1, figsize=(8, 1.9 * len(comparisons) + 0.6), sharex=True,
+                             squeeze=False)
+    for ax, label, c in zip(axes[:, 0], labels, comparisons):
+        ax.plot(c.time, c.measured, "k", lw=0.8, label="measured (test record)")
+        if c.free_run is not None:
+            ax.plot(c.time, c.free_run, "r", lw=1.0, label="free run of the model")
+            ax.set_title(f"{label}: fit {c.fit_percent:.1f} % (the noise allows {c.ceiling_percent:.1f} %)",
+                         fontsize=9)
+        else:
+            ax.set_title(f"{label}: {c.message}", fontsize=9)
+        ax.set_ylabel("output")
+    axes[0, 0].legend(fontsize=8, loc="lower left", ncol=2)
+    axes[-1, 0].set_xlabel("time [s]")
+    fig.tight_layout()
+    return fig
+
+
 def signature_figure(eff, coordinate: str = "x", span: float = 2.0):
     """An effect's signature (a catalogue :class:`~cvxid.model.library.Effect`): its force
     against the state it depends on."""
@@ -127,9 +148,12 @@ def signature_figure(eff, coordinate: str = "x", span: float = 2.0):
     return fig
 
 
-def residual_figure(res, bins: int = 21):
-    """The equation error in time and binned against position and velocity."""
+def residual_figure(res, bins: int = 21, title: str | None = None):
+    """The equation error in time and binned against position and velocity (mean and spread
+    per bin)."""
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+    if title:
+        fig.suptitle(title, fontsize=10)
     axes[0].plot(res.time, res.residual, "k", lw=0.5)
     axes[0].set_xlabel("time [s]")
     axes[0].set_ylabel("equation error (force units)")
@@ -138,7 +162,7 @@ def residual_figure(res, bins: int = 21):
         ax.errorbar(b["center"], b["mean"], yerr=b["std"], fmt="ko-", ms=3)
         ax.axhline(0, color="gray", lw=0.6)
         ax.set_xlabel(label)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.93) if title else (0, 0, 1, 1))
     return fig
 
 

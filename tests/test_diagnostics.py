@@ -2,6 +2,7 @@
 
 import numpy as np
 import pytest
+from matplotlib import pyplot as plt
 
 from cvxid import CvxidError
 from cvxid.data.experiment import Experiment
@@ -70,14 +71,27 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     assert step.test_mse_before >= falls[hidden] * step.test_mse_after
     assert step.fit_after > {"coulomb": 97.5, "cubic_stiffness": 99.0, "quadratic_damping": 98.8}[hidden]
     assert hidden in {g for group in dx.groups for g in group}
+    # the figures a user decides by: the free runs before and after, from the loop's own comparisons
+    assert [c.fit_percent for c in result.comparisons] == [step.fit_before, step.fit_after]
+    assert result.start is start and result.labels == ["start", f"+ {hidden}"]
+    responses = result.plot_responses()
+    assert [ax.get_title().split(":")[0] for ax in responses.axes] == ["start", f"+ {hidden}"]
+    history = result.plot().axes[0]
+    assert [line.get_label() for line in history.get_lines()] == ["test equation-error MSE",
+                                                                  "test free-run error (1 - fit)"]
+    assert history.get_lines()[1].get_ydata()[1] == pytest.approx(1 - step.fit_after / 100)
+    assert "where the starting model fails" in result.plot_residuals(test)._suptitle.get_text()
+    plt.close("all")
 
 
 def test_control_case_adds_nothing():
     train, test = experiments(None)
     start = refit(linear_model(), train, ["x''", "x", "x'"], None)
     result = refine(start, train, test)
-    assert result.steps == []
+    assert result.steps == [] and result.comparisons == []
     assert "nothing added" in repr(result)
+    with pytest.raises(CvxidError, match="nothing to plot: the refinement added no effect"):
+        result.plot_responses()
 
 
 def test_compare_reports_fit_and_k_step():

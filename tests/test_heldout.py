@@ -15,6 +15,7 @@ from cvxid.tools.heldout import (
     INPUT_DELAY_RANGE,
     X_RMS,
     by_duration,
+    _falls,
     confusion,
     draw,
     heldout,
@@ -161,8 +162,27 @@ def test_the_confusion_table_counts_right_and_wrong_additions():
         "effect": ["coulomb", "coulomb", "none", "none"], "status": "ok",
         "first effect": ["coulomb", "offset", "offset", "offset"],
         "added": ["coulomb", "", "offset", ""], "added by simulation": ["", "coulomb,offset", "", ""],
+        "first added": ["coulomb", "offset", "offset", None],
+        "equation error fall": [8.0, np.nan, np.nan, np.nan], "free-run error fall": [4.0, 2.0, np.nan, np.nan],
     })
     table = confusion(frame)
+    assert table.loc["coulomb", "added first %"] == 50 and table.loc["none", "added first %"] == 0
+    assert table.loc["coulomb", "equation error fall (median x)"] == 8.0
+    assert table.loc["coulomb", "free-run error fall (median x)"] == 3.0
     assert table.loc["coulomb", "ranked first %"] == 50 and table.loc["coulomb", "added %"] == 100
     assert table.loc["coulomb", "added by simulation %"] == 50 and table.loc["coulomb", "wrong addition %"] == 50
     assert table.loc["none", "wrong addition %"] == 50 and table.loc["none", "most often first"] == "offset"
+
+
+def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
+    equation = {"added": "offset", "test_mse_before": 4.0, "test_mse_after": 1.0, "fit_before": 90.0,
+                "fit_after": 98.0}
+    simulation = {"added": "coulomb", "kept": True, "test_rms_before": 0.3, "test_rms_after": 0.1}
+    result = {"refinement": [equation], "simulation_diagnosis": {"steps": [simulation]}}
+    assert _falls(result, "offset") == {"first added": "offset", "equation error fall": 4.0,
+                                        "free-run error fall": pytest.approx(5.0)}
+    late = _falls(result, "coulomb")
+    assert late["first added"] == "offset" and np.isnan(late["equation error fall"])
+    assert late["free-run error fall"] == pytest.approx(3.0)
+    missed = _falls({"refinement": [], "simulation_diagnosis": {"steps": [{**simulation, "kept": False}]}}, "coulomb")
+    assert missed["first added"] is None and np.isnan(missed["free-run error fall"])

@@ -41,6 +41,7 @@ def test_init_writes_a_spec_that_runs_as_written_and_finds_the_friction(tmp_path
     assert main(["run", str(tmp_path / "specs" / "rig.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert result["refinement"][0]["added"] == "coulomb"  # the missing friction, found from the start spec
+    assert {"responses", "residuals", "refinement"} <= set(result["figures"])  # before/after, where, history
     assert result["test_fit_percent"] > 95
     # asked again, it keeps the user's file
     assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "specs" / "rig.toml")]) == 2

@@ -97,6 +97,10 @@ def write_report(result, out) -> tuple[Path, str | None]:
         if system.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
         "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
+        "responses": result.refinement.plot_responses
+        if not result.coupled and result.refinement is not None and result.refinement.steps else None,
+        "residuals": (lambda: result.refinement.plot_residuals(result.test))
+        if not result.coupled and result.refinement is not None and result.refinement.steps else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
     if result.test is not None and result.coupled and np.isfinite(result.test_fit["fit_percent"]).all():

@@ -249,11 +249,11 @@ class Residuals:
     velocity: np.ndarray
     input: np.ndarray
 
-    def plot(self, bins: int = 21):
+    def plot(self, bins: int = 21, title: str | None = None):
         """The residual in time and binned against position and velocity."""
         from cvxid.plots import residual_figure
 
-        return residual_figure(self, bins)
+        return residual_figure(self, bins, title)
 
     def binned(self, against: str = "velocity", bins: int = 21) -> pd.DataFrame:
         """Mean and spread of the residual in bins of the position or the velocity."""
@@ -495,16 +495,49 @@ class Refinement:
     model: IdentifiedModel
     steps: list[RefineStep]
     diagnoses: list[Diagnosis]
+    comparisons: list[Comparison] = field(default_factory=list)
+    """The test record's free runs: the starting model's, then one after each added effect
+    (empty when nothing was added)."""
+    start: IdentifiedModel | None = None
+    """The model the loop started from."""
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([s.as_dict() for s in self.steps]).set_index("added") if self.steps else pd.DataFrame()
 
+    @property
+    def labels(self) -> list[str]:
+        """``start``, then ``+ effect`` for each added effect."""
+        return ["start"] + [f"+ {s.added}" for s in self.steps]
+
     def plot(self):
+        """The error history: the test record's equation-error MSE and free-run error
+        (:math:`1 - \\text{fit}/100`) before and after each added effect."""
         from cvxid.plots import refinement_figure
 
         steps = self.steps
-        errors = [steps[0].test_mse_before] + [s.test_mse_after for s in steps] if steps else []
-        return refinement_figure(["start"] + [s.added for s in steps], {"test equation-error MSE": errors})
+        if not steps:
+            raise CvxidError("nothing to plot: the refinement added no effect")
+        series = {"test equation-error MSE": [steps[0].test_mse_before] + [s.test_mse_after for s in steps]}
+        fits = [steps[0].fit_before] + [s.fit_after for s in steps]
+        if all(f is not None for f in fits):
+            series["test free-run error (1 - fit)"] = [1.0 - f / 100.0 for f in fits]
+        return refinement_figure(self.labels, series)
+
+    def plot_responses(self):
+        """The test record's free run before and after each added effect, over the
+        measurement, one panel each (the fit in each title)."""
+        from cvxid.plots import responses_figure
+
+        if not self.comparisons:
+            raise CvxidError("nothing to plot: the refinement added no effect")
+        return responses_figure(self.labels, self.comparisons)
+
+    def plot_residuals(self, experiment: Experiment, bins: int = 21):
+        """Where the starting model fails: its equation error on ``experiment`` in time and
+        binned against position and velocity (a step at x' = 0 is a dry friction, a slope
+        in x a stiffness, a level an offset)."""
+        return residuals(self.start, experiment).plot(bins, title="where the starting model fails: its equation "
+                                                                  f"error on '{experiment.name}'")
 
     def __repr__(self) -> str:
         if not self.steps:
@@ -556,7 +589,7 @@ def refine(
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(model.spec, train, velocity, window, train_rows)
     test_rows = _builder(model.spec, test, velocity, train_rows.window, test_rows)
-    steps, diagnoses = [], []
+    steps, diagnoses, comparisons, start = [], [], [], model
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
         pool = candidates if candidates is not None else default_candidates(model.spec)
@@ -591,8 +624,9 @@ def refine(
         group = next(g for g in dx.groups if best in g)
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, before, after,
                                 old_cmp.fit_percent, new_cmp.fit_percent))
+        comparisons += [new_cmp] if comparisons else [old_cmp, new_cmp]
         model = new
-    return Refinement(model, steps, diagnoses)
+    return Refinement(model, steps, diagnoses, comparisons, start)
 
 
 def _selected_anew(spec: ModelSpec, tau: float | None, train_rows: RegressionBuilder, test_rows: RegressionBuilder,

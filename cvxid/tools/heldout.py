@@ -366,7 +366,8 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 # ---------------------------------------------------------------------- runs
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
 TRAILING = ["worst other %", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
-DIAGNOSIS = ["first effect", "added", "added by simulation"]
+DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
+             "free-run error fall"]
 SELECTION = ["support recovered", "missed", "spurious"]
 
 
@@ -401,7 +402,29 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
         "added": ",".join(step["added"] for step in result.get("refinement") or []),
         "added by simulation": ",".join(step["added"] for step in (result.get("simulation_diagnosis") or {})
                                         .get("steps", []) if step["kept"]),
+        **_falls(result, oscillator.effect),
     }
+
+
+def _falls(result: dict, effect: str) -> dict:
+    """The first effect either diagnosis stage added, and by what factor the test record's
+    errors fell (before / after) at the step that added ``effect``: the equation error's
+    MSE and the free run's RMS (from the fits, :math:`(100 - \\text{fit}_0) / (100 -
+    \\text{fit}_1)`) when the equation-error stage added it, the free run's RMS alone when the
+    simulation stage did; NaN when it was not added."""
+    steps = [{**s, "stage": "equation"} for s in result.get("refinement") or []]
+    steps += [{**s, "stage": "simulation"} for s in (result.get("simulation_diagnosis") or {}).get("steps", [])
+              if s["kept"]]
+    step = next((s for s in steps if s["added"] == effect), None)
+    equation = free_run = np.nan
+    if step is not None and step["stage"] == "equation":
+        equation = step["test_mse_before"] / step["test_mse_after"]
+        if step["fit_before"] is not None and step["fit_after"] is not None:
+            free_run = (100.0 - step["fit_before"]) / max(100.0 - step["fit_after"], 1e-12)
+    elif step is not None:
+        free_run = step["test_rms_before"] / step["test_rms_after"]
+    return {"first added": steps[0]["added"] if steps else None, "equation error fall": equation,
+            "free-run error fall": free_run}
 
 
 def selection_library() -> list[str]:
@@ -501,7 +524,9 @@ level): adding them is not a wrong addition."""
 def confusion(frame: pd.DataFrame) -> pd.DataFrame:
     """Diagnosis mode, per hidden effect: how often the equation-error diagnosis ranked it
     first, how often it was added (by either stage, and by the simulation stage alone), how
-    often another effect was added (a wrong addition; not one of its :data:`PARTS`), and
+    often it was the first effect added, the median factors by which its addition lowered
+    the test record's equation error (MSE) and free-run error (RMS), how often another
+    effect was added (a wrong addition; not one of its :data:`PARTS`), and
     which effect was ranked first most often in its place.  The control (``none``) can only
     have wrong additions."""
     ok = frame[frame["status"] == "ok"]
@@ -516,6 +541,9 @@ def confusion(frame: pd.DataFrame) -> pd.DataFrame:
             "ranked first %": 100 * float((group["first effect"] == effect).mean()),
             "added %": 100 * float(np.mean([effect in a for a in added])),
             "added by simulation %": 100 * float(np.mean(by_simulation)),
+            "added first %": 100 * float(group["first added"].isin({effect, *PARTS.get(effect, ())}).mean()),
+            "equation error fall (median x)": group["equation error fall"].median(),
+            "free-run error fall (median x)": group["free-run error fall"].median(),
             "wrong addition %": 100 * float(np.mean(wrong)),
             "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
         }
