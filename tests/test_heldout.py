@@ -1,5 +1,7 @@
 """The held-out benchmark (``cvxid bench --heldout``): draws, records, specs, failures, one run."""
 
+import json
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -15,6 +17,7 @@ from cvxid.tools.heldout import (
     INPUT_DELAY_RANGE,
     X_RMS,
     by_duration,
+    run_one,
     _falls,
     confusion,
     draw,
@@ -172,6 +175,10 @@ def test_the_confusion_table_counts_right_and_wrong_additions():
     assert table.loc["coulomb", "ranked first %"] == 50 and table.loc["coulomb", "added %"] == 100
     assert table.loc["coulomb", "added by simulation %"] == 50 and table.loc["coulomb", "wrong addition %"] == 50
     assert table.loc["none", "wrong addition %"] == 50 and table.loc["none", "most often first"] == "offset"
+    noisy = confusion(frame.assign(noise=[0.01, 0.001, 0.01, 0.01]), ("effect", "noise"))
+    assert noisy.index.names == ["hidden effect", "noise"]
+    assert noisy.loc[("coulomb", 0.01), "added first %"] == 100 and noisy.loc[("coulomb", 0.001), "added first %"] == 0
+    assert noisy.loc[("none", 0.01), "systems"] == 2
 
 
 def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
@@ -186,3 +193,20 @@ def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
     assert late["free-run error fall"] == pytest.approx(3.0)
     missed = _falls({"refinement": [], "simulation_diagnosis": {"steps": [{**simulation, "kept": False}]}}, "coulomb")
     assert missed["first added"] is None and np.isnan(missed["free-run error fall"])
+
+
+def test_collinear_rivals_are_decided_by_the_free_run(tmp_path):
+    # tuning seed 8: the equation error ranks cubic damping (x'^3) above the hidden
+    # quadratic damping (x'|x'|), nearly collinear; before the free run decided between
+    # them, both were added (measured: first added cubic_damping, free-run error fall 45x)
+    row = run_one(8, "quadratic_damping", 0.001, 8.0, mode="diagnosis", known_gain=True, keep=tmp_path)
+    assert row["status"] == "ok", row["error"]
+    assert row["first effect"] == row["added"] == row["first added"] == "quadratic_damping"
+    assert row["free-run error fall"] > 100  # measured 233x
+    (folder,) = tmp_path.iterdir()
+    ranking = json.loads((folder / "result.json").read_text())["diagnosis"]["ranking"]
+    fits = {r["effect"]: r["free_run_fit"] for r in ranking if r.get("free_run_fit") is not None}
+    assert {"quadratic_damping", "cubic_damping"} <= set(fits)  # the group the equation error cannot split
+    assert fits["quadratic_damping"] > max(f for e, f in fits.items() if e != "quadratic_damping") + 1  # % points
+    assert max(r["validation_ratio"] for r in ranking) == next(r for r in ranking
+                                                               if r["effect"] == "cubic_damping")["validation_ratio"]

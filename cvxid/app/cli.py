@@ -190,7 +190,8 @@ def _heldout(args) -> int:
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
     if args.mode in ("diagnosis", "selection_diagnosis"):
         print()
-        print(confusion(frame).to_string(float_format=lambda v: f"{v:.3g}"))
+        print(confusion(frame, ("effect", "noise") if len(noises) > 1 else ("effect",))
+              .to_string(float_format=lambda v: f"{v:.3g}"))
     if args.systems:
         print()
         print(frame.drop(columns=["error"]).to_string(float_format=lambda v: f"{v:.4g}"))

@@ -323,8 +323,19 @@ class Diagnosis:
 
     @property
     def top(self) -> str:
-        """The best-scoring candidate (by validation drop when known, else by ERR)."""
+        """The best-scoring candidate (by validation drop when known, else by ERR; among
+        collinear rivals, by the free run when :meth:`decided` was called)."""
         return str(self.ranking.index[0])
+
+    def decided(self, fits: dict[str, float | None]) -> Diagnosis:
+        """This diagnosis with collinear rivals decided by their test free-run fits
+        (``fits``: rival -> fit %, None when its free run diverged): a ``free_run_fit``
+        column, and the best rival first."""
+        best = max(fits, key=lambda g: -np.inf if fits[g] is None else fits[g])
+        ranking = self.ranking.assign(free_run_fit=pd.Series({g: np.nan if f is None else f for g, f in fits.items()},
+                                                             dtype=float))
+        ranking = pd.concat([ranking.loc[[best]], ranking.drop(index=best)])
+        return replace(self, ranking=ranking)
 
     def records(self) -> list[dict]:
         out = []
@@ -602,31 +613,50 @@ def refine(
         if dx.ranking.loc[best, "validation_ratio"] < 1 + min_improvement:
             break
         before = _test_mse(model, test_rows)
-        support = [n for n, c in model.coefficients.items() if c != 0.0]
-        if best == "delay":  # a wrong delay: estimate it again on the same terms
-            new = refit(model.spec, train, support, None, velocity, model.lam, window, train_rows)
-        elif best == "input_delay":  # the input acts late: estimate its delay on the same terms
-            new = refit(with_input_delay(model.spec, train), train, support, model.tau, velocity, model.lam, window,
-                        train_rows)
-        else:
-            term = str(dx.ranking.loc[best, "term"])
-            spec2 = with_effect(model.spec, best)
-            if selection is not None and any(c.penalty > 0 for c in model.spec.columns):
-                spec2 = replace(spec2, listed=spec2.listed + (term,))
-                support = _selected_anew(spec2, model.tau, train_rows, test_rows, selection)
-            new = refit(spec2, train, support + [term], model.tau, velocity, model.lam, window, train_rows)
+        group = next(g for g in dx.groups if best in g)
+        old_cmp = compare(model, test, initial="record")
+        # the equation error cannot tell a collinear group's members apart: of those that
+        # lower it enough, the free run of the test record chooses
+        rivals = [best] if best in ("delay", "input_delay") else [
+            g for g in group if g not in ("delay", "input_delay")
+            and dx.ranking.loc[g, "validation_ratio"] >= 1 + min_improvement]
+        tried = {g: _with_candidate(model, g, dx, train, velocity, window, train_rows, test_rows, selection)
+                 for g in rivals}
+        compared = {g: compare(m, test, initial="record") for g, m in tried.items()}
+        if len(rivals) > 1:
+            diagnoses[-1] = dx = dx.decided({g: c.fit_percent for g, c in compared.items()})
+        best = dx.top
+        new, new_cmp = tried[best], compared[best]
         after = _test_mse(new, test_rows)
-        old_cmp, new_cmp = compare(model, test, initial="record"), compare(new, test, initial="record")
         # accept only when a simulation agrees: the free-run or the k-step-ahead error must
         # fall too (equation errors alone accepted a spurious term in our hidden-effect trials)
         if _improvement(old_cmp, new_cmp) < 1 + min_improvement:
             break
-        group = next(g for g in dx.groups if best in g)
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, before, after,
                                 old_cmp.fit_percent, new_cmp.fit_percent))
         comparisons += [new_cmp] if comparisons else [old_cmp, new_cmp]
         model = new
     return Refinement(model, steps, diagnoses, comparisons, start)
+
+
+def _with_candidate(model: IdentifiedModel, name: str, dx: Diagnosis, train: Experiment, velocity: str,
+                    window, train_rows: RegressionBuilder, test_rows: RegressionBuilder,
+                    selection: Selection | None) -> IdentifiedModel:
+    """``model`` refitted with the candidate ``name``: the delay or the input's delay
+    estimated again on the same terms, or the effect's term added (and a library to select
+    from selected anew beside it, with a ``selection``)."""
+    support = [n for n, c in model.coefficients.items() if c != 0.0]
+    if name == "delay":  # a wrong delay: estimate it again on the same terms
+        return refit(model.spec, train, support, None, velocity, model.lam, window, train_rows)
+    if name == "input_delay":  # the input acts late: estimate its delay on the same terms
+        return refit(with_input_delay(model.spec, train), train, support, model.tau, velocity, model.lam, window,
+                     train_rows)
+    term = str(dx.ranking.loc[name, "term"])
+    spec = with_effect(model.spec, name)
+    if selection is not None and any(c.penalty > 0 for c in model.spec.columns):
+        spec = replace(spec, listed=spec.listed + (term,))
+        support = _selected_anew(spec, model.tau, train_rows, test_rows, selection)
+    return refit(spec, train, support + [term], model.tau, velocity, model.lam, window, train_rows)
 
 
 def _selected_anew(spec: ModelSpec, tau: float | None, train_rows: RegressionBuilder, test_rows: RegressionBuilder,

@@ -521,22 +521,24 @@ PARTS = {"stribeck": ("coulomb",)}
 level): adding them is not a wrong addition."""
 
 
-def confusion(frame: pd.DataFrame) -> pd.DataFrame:
+def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
     """Diagnosis mode, per hidden effect: how often the equation-error diagnosis ranked it
     first, how often it was added (by either stage, and by the simulation stage alone), how
     often it was the first effect added, the median factors by which its addition lowered
     the test record's equation error (MSE) and free-run error (RMS), how often another
     effect was added (a wrong addition; not one of its :data:`PARTS`), and
     which effect was ranked first most often in its place.  The control (``none``) can only
-    have wrong additions."""
+    have wrong additions.  ``by``: the grouping, the hidden effect first (``("effect",
+    "noise")``: per noise level too)."""
     ok = frame[frame["status"] == "ok"]
     rows = {}
-    for effect, group in ok.groupby("effect", sort=False):
+    for key, group in ok.groupby(list(by), sort=False):
+        effect = key[0]
         added = [set(filter(None, f"{a},{s}".split(","))) for a, s in
                  zip(group["added"].fillna(""), group["added by simulation"].fillna(""))]
         by_simulation = [effect in set(filter(None, s.split(","))) for s in group["added by simulation"].fillna("")]
         wrong = [bool(a - {effect, *PARTS.get(effect, ())}) for a in added]
-        rows[effect] = {
+        rows[key if len(by) > 1 else effect] = {
             "systems": len(group),
             "ranked first %": 100 * float((group["first effect"] == effect).mean()),
             "added %": 100 * float(np.mean([effect in a for a in added])),
@@ -547,7 +549,10 @@ def confusion(frame: pd.DataFrame) -> pd.DataFrame:
             "wrong addition %": 100 * float(np.mean(wrong)),
             "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
         }
-    return pd.DataFrame.from_dict(rows, orient="index").rename_axis("hidden effect")
+    table = pd.DataFrame.from_dict(rows, orient="index")
+    if len(by) > 1:
+        table.index = pd.MultiIndex.from_tuples(table.index)
+    return table.rename_axis(["hidden effect", *by[1:]])
 
 
 def by_duration(frame: pd.DataFrame) -> pd.DataFrame:
