@@ -596,7 +596,10 @@ def refine(
     The refit keeps the model's terms and adds the effect's; with a ``selection`` and a
     library to select from, the library is selected anew beside the effect (kept, as a
     listed term): a term the first selection dropped may return, and one that only stood in
-    for the missing effect may leave."""
+    for the missing effect may leave.  When the best candidate has collinear rivals (its
+    group in :attr:`Diagnosis.groups`) that lower the test equation error enough too, each is
+    refitted and the test record's free run chooses (:meth:`Diagnosis.decided`): the
+    equation error cannot tell a quadratic from a cubic damping, a simulation can."""
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(model.spec, train, velocity, window, train_rows)
     test_rows = _builder(model.spec, test, velocity, train_rows.window, test_rows)
