@@ -111,7 +111,9 @@ def refinement_figure(labels, series: dict):
 def responses_figure(labels, comparisons):
     """One panel per model (``labels``: start, then each added effect): the measured output
     and the model's free run over the same record, the fit in the panel's title, so that
-    where each effect mattered shows in the response itself."""
+    where each effect mattered shows in the response itself.  These are the diagnosis's own
+    models and comparisons (from the record's first state, before any output-error polish),
+    which the figure's title says."""
     fig, axes = plt.subplots(len(comparisons), 1, figsize=(8, 1.9 * len(comparisons) + 0.6), sharex=True,
                              squeeze=False)
     for ax, label, c in zip(axes[:, 0], labels, comparisons):
@@ -125,7 +127,9 @@ def responses_figure(labels, comparisons):
         ax.set_ylabel("output")
     axes[0, 0].legend(fontsize=8, loc="lower left", ncol=2)
     axes[-1, 0].set_xlabel("time [s]")
-    fig.tight_layout()
+    fig.suptitle("the diagnosis's models, each added effect in turn (free run from the record's first state, "
+                 "before the output-error polish)", fontsize=9)
+    fig.tight_layout(rect=(0, 0, 1, 0.96))
     return fig
 
 

@@ -179,6 +179,8 @@ def test_the_confusion_table_counts_right_and_wrong_additions():
     assert noisy.index.names == ["hidden effect", "noise"]
     assert noisy.loc[("coulomb", 0.01), "added first %"] == 100 and noisy.loc[("coulomb", 0.001), "added first %"] == 0
     assert noisy.loc[("none", 0.01), "systems"] == 2
+    nothing = confusion(frame.assign(status="failed", noise=0.01), ("effect", "noise"))
+    assert nothing.empty and nothing.index.names == ["hidden effect", "noise"]  # printed, not raised
 
 
 def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
@@ -191,6 +193,8 @@ def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
     late = _falls(result, "coulomb")
     assert late["first added"] == "offset" and np.isnan(late["equation error fall"])
     assert late["free-run error fall"] == pytest.approx(3.0)
+    diverged = _falls({"refinement": [{**equation, "fit_before": None}]}, "offset")
+    assert diverged["free-run error fall"] == np.inf and diverged["equation error fall"] == 4.0
     missed = _falls({"refinement": [], "simulation_diagnosis": {"steps": [{**simulation, "kept": False}]}}, "coulomb")
     assert missed["first added"] is None and np.isnan(missed["free-run error fall"])
 

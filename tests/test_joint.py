@@ -45,6 +45,7 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     low, high = result["tau"]["interval"]  # the noise's share only: the rig's smooth friction is not in it
     assert low < physical["tau"] < high and high - low < 1e-3
     assert {"test_fit", "delay_profile", "refinement"} <= set(result["figures"])
+    assert not {"responses", "residuals"} & set(result["figures"])  # one equation's figures only
     assert "theta(t - " in result["equations"]["alpha"]  # the alpha equation reads the delayed theta
     # the joint model saved to JSON and loaded back simulates identically
     loaded = IdentifiedSystem.load(tmp_path / result["model_file"])

@@ -190,7 +190,7 @@ def _heldout(args) -> int:
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
     if args.mode in ("diagnosis", "selection_diagnosis"):
         print()
-        print(confusion(frame, ("effect", "noise") if len(noises) > 1 else ("effect",))
+        print(confusion(frame, ("effect",) + tuple(k for k in by if k != "effect"))
               .to_string(float_format=lambda v: f"{v:.3g}"))
     if args.systems:
         print()

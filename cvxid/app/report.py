@@ -85,22 +85,22 @@ def write_report(result, out) -> tuple[Path, str | None]:
     :meth:`~cvxid.identified.IdentifiedSystem.load`; one equation also reads with
     :meth:`~cvxid.identified.IdentifiedModel.load`) and the figures (``test_fit``, and when
     the run made them ``path``, ``delay_profile``, ``diagnosis``, ``refinement``,
-    ``orders``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
+    ``orders``; when the one-equation diagnosis added an effect ``responses`` and
+    ``residuals``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
     and what an earlier run had left there (:func:`earlier_run`), or None."""
     out = prepare_folder(out)
     replaced = earlier_run(out)
     data = result.to_dict()
     system = result.system
+    added = not result.coupled and result.refinement is not None and bool(result.refinement.steps)
     plotters = {
         "path": (lambda: path_figure(result.path, result.lam)) if result.path is not None else None,
         "delay_profile": (lambda: delay_profile_figure(*system.profile, system.tau, system.info.get("tau_interval")))
         if system.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
         "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
-        "responses": result.refinement.plot_responses
-        if not result.coupled and result.refinement is not None and result.refinement.steps else None,
-        "residuals": (lambda: result.refinement.plot_residuals(result.test))
-        if not result.coupled and result.refinement is not None and result.refinement.steps else None,
+        "responses": result.refinement.plot_responses if added else None,
+        "residuals": (lambda: result.refinement.plot_residuals(result.test)) if added else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
     if result.test is not None and result.coupled and np.isfinite(result.test_fit["fit_percent"]).all():

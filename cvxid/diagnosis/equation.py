@@ -287,7 +287,18 @@ class Residuals:
 
 
 def residuals(model: IdentifiedModel, experiment: Experiment) -> Residuals:
-    """The equation error of ``model`` on ``experiment`` (see the module docstring)."""
+    """The equation error of ``model`` on ``experiment`` (see the module docstring); a
+    record with gaps gives the errors of its gap-free runs one after another (each smoothed
+    on its own: a smoothing window must not cross a gap)."""
+    segments = experiment.segments()
+    if len(segments) > 1:
+        parts = [_residuals(model, s) for s in segments]
+        return Residuals(*(np.concatenate([getattr(r, f) for r in parts])
+                           for f in ("time", "residual", "position", "velocity", "input")))
+    return _residuals(model, experiment)
+
+
+def _residuals(model: IdentifiedModel, experiment: Experiment) -> Residuals:
     spec = model.spec
     y = experiment.output(spec.coordinate)
     w = savgol_window(y)
@@ -331,7 +342,7 @@ class Diagnosis:
         """This diagnosis with collinear rivals decided by their test free-run fits
         (``fits``: rival -> fit %, None when its free run diverged): a ``free_run_fit``
         column, and the best rival first."""
-        best = max(fits, key=lambda g: -np.inf if fits[g] is None else fits[g])
+        best = max(fits, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf)
         ranking = self.ranking.assign(free_run_fit=pd.Series({g: np.nan if f is None else f for g, f in fits.items()},
                                                              dtype=float))
         ranking = pd.concat([ranking.loc[[best]], ranking.drop(index=best)])
@@ -351,6 +362,9 @@ class Diagnosis:
         if shared:
             text += "\n  nearly collinear (the data cannot tell them apart by ERR alone): "
             text += "; ".join(" ~ ".join(g) for g in shared)
+        if "free_run_fit" in self.ranking:
+            text += ("\n  free_run_fit: the test record's free-run fit (%) of each collinear rival refitted; "
+                     "the best is ranked first")
         return text
 
 
@@ -547,6 +561,8 @@ class Refinement:
         """Where the starting model fails: its equation error on ``experiment`` in time and
         binned against position and velocity (a step at x' = 0 is a dry friction, a slope
         in x a stiffness, a level an offset)."""
+        if self.start is None:
+            raise CvxidError("nothing to plot: this refinement does not know the model it started from")
         return residuals(self.start, experiment).plot(bins, title="where the starting model fails: its equation "
                                                                   f"error on '{experiment.name}'")
 
@@ -613,7 +629,7 @@ def refine(
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
         diagnoses.append(dx)
         best = dx.top
-        if dx.ranking.loc[best, "validation_ratio"] < 1 + min_improvement:
+        if not dx.ranking.loc[best, "validation_ratio"] >= 1 + min_improvement:  # (NaN: no evidence either)
             break
         before = _test_mse(model, test_rows)
         group = next(g for g in dx.groups if best in g)

@@ -411,7 +411,9 @@ def _falls(result: dict, effect: str) -> dict:
     errors fell (before / after) at the step that added ``effect``: the equation error's
     MSE and the free run's RMS (from the fits, :math:`(100 - \\text{fit}_0) / (100 -
     \\text{fit}_1)`) when the equation-error stage added it, the free run's RMS alone when the
-    simulation stage did; NaN when it was not added."""
+    simulation stage did; NaN when it was not added, infinite when the model before it
+    diverged.  (The equation stage's free runs start from the record's first state, the
+    simulation stage's from an estimated one.)"""
     steps = [{**s, "stage": "equation"} for s in result.get("refinement") or []]
     steps += [{**s, "stage": "simulation"} for s in (result.get("simulation_diagnosis") or {}).get("steps", [])
               if s["kept"]]
@@ -419,8 +421,9 @@ def _falls(result: dict, effect: str) -> dict:
     equation = free_run = np.nan
     if step is not None and step["stage"] == "equation":
         equation = step["test_mse_before"] / step["test_mse_after"]
-        if step["fit_before"] is not None and step["fit_after"] is not None:
-            free_run = (100.0 - step["fit_before"]) / max(100.0 - step["fit_after"], 1e-12)
+        if step["fit_after"] is not None:  # a model before that diverged: an infinite fall
+            free_run = np.inf if step["fit_before"] is None else \
+                (100.0 - step["fit_before"]) / max(100.0 - step["fit_after"], 1e-12)
     elif step is not None:
         free_run = step["test_rms_before"] / step["test_rms_after"]
     return {"first added": steps[0]["added"] if steps else None, "equation error fall": equation,
@@ -475,7 +478,8 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
     Columns: seed, effect, noise, duration, kind (of the training forcing), true tau, tau,
     tau error %, the tau interval (low, high, covers), ``err % <parameter>`` for every
     physical parameter (``m``, term names, ``gain``), worst other %, seconds (of the run),
-    status, error; in diagnosis mode also the first ranked effect and the effects added; in
+    status, error; in diagnosis mode also the first ranked effect, the effects added (by
+    either stage), the first added and the error falls at its step (:func:`_falls`); in
     selection mode whether the true support was recovered, the terms missed and the spurious
     ones.  ``fit``: ``[fit]`` settings for every spec (see :func:`spec_text`).
     """
@@ -522,8 +526,8 @@ level): adding them is not a wrong addition."""
 
 
 def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
-    """Diagnosis mode, per hidden effect: how often the equation-error diagnosis ranked it
-    first, how often it was added (by either stage, and by the simulation stage alone), how
+    """Diagnosis mode, per hidden effect: how often the diagnosis ranked it first (by the
+    test equation error; collinear rivals by the test free run), how often it was added (by either stage, and by the simulation stage alone), how
     often it was the first effect added, the median factors by which its addition lowered
     the test record's equation error (MSE) and free-run error (RMS), how often another
     effect was added (a wrong addition; not one of its :data:`PARTS`), and
@@ -550,9 +554,11 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
             "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
         }
     table = pd.DataFrame.from_dict(rows, orient="index")
-    if len(by) > 1:
-        table.index = pd.MultiIndex.from_tuples(table.index)
-    return table.rename_axis(["hidden effect", *by[1:]])
+    names = ["hidden effect", *by[1:]]
+    if len(by) > 1:  # (no system finished: an empty table, not an error after a long run)
+        table.index = pd.MultiIndex.from_tuples(table.index, names=names) if rows else \
+            pd.MultiIndex.from_arrays([[]] * len(names), names=names)
+    return table.rename_axis(names)
 
 
 def by_duration(frame: pd.DataFrame) -> pd.DataFrame:
