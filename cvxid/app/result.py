@@ -19,6 +19,7 @@ from cvxid.errors import CvxidError
 from cvxid.metrics import relative_error_percent
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
+from cvxid.identify.selection import Stability
 from cvxid.identify.orders import OrderSearch
 from cvxid.identify.output_error import PolishResult
 from cvxid.identify.path import Path
@@ -58,6 +59,7 @@ class RunResult:
     test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
+    stability: Stability | None = None  # stability selection's inclusion probabilities (one equation)
 
     @property
     def coupled(self) -> bool:
@@ -119,6 +121,7 @@ class RunResult:
             "warnings": self.warnings,
             "tau": self.tau,
             "input_delay": self.input_delay,
+            "stability": None if self.stability is None else self.stability.as_dict(),
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
                 "terms": records(self.bootstrap.summary()),
@@ -246,7 +249,8 @@ class RunResult:
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
         ]
-        for part in (self.order_search, self.stepwise, self.diagnosis, self.refinement, self.simulation_refinement):
+        for part in (self.stability, self.order_search, self.stepwise, self.diagnosis, self.refinement,
+                     self.simulation_refinement):
             if part is not None:
                 lines += [repr(part), ""]
         return "\n".join(lines + self._footer())

@@ -38,7 +38,8 @@ from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
-from cvxid.identify.path import SELECTING, Path, Selection, select
+from cvxid.identify.path import SELECTING, Path
+from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import stepwise_output_error
@@ -218,14 +219,18 @@ def _identify(spec) -> RunResult:
     problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
     # lambda by the test error, or without a test experiment by blocked cross-validation over time
     folds = CV_FOLDS if validation is None and fit.estimator != "lstsq" else None
+    stable = None
     if fit.estimator == "lstsq":  # every fit is one: least squares on every column
         path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, "lstsq")
         best = path.fits[-1]
-    else:
-        path, best = select(problem, fit.lambdas, validation.residual if validation else None, fit.estimator,
-                            fit.debias, folds, fit.selection)
-    keep = best.support | (problem.penalties == 0)
-    coefs = dict(zip(problem.names, np.where(keep, best.coefficients, 0.0)))
+        keep = best.support | (problem.penalties == 0)
+    else:  # stability selection for one equation (a coupled system's rows are its equations' stacked)
+        choice = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability if one else None).choose(
+            regression, system.nonnegative, fit.solver, validation.residual if validation else None, folds,
+            fit.debias, system.ties)
+        path, best, keep, stable = choice.path, choice.fit, choice.keep, choice.stability
+    chosen = best if stable is None else problem.refit(keep)
+    coefs = dict(zip(problem.names, np.where(keep, chosen.coefficients, 0.0)))
     if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
         system = system.selected([n for n, k in zip(problem.names, keep) if k])
         regression = regression.subset(system.column_names)
@@ -269,7 +274,7 @@ def _identify(spec) -> RunResult:
     if not one and tau_info is not None:
         tau_info["method"] = "joint profile"
     out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
-                    float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info,
+                    float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info, stability=stable,
                     lam=best.lam if selects else None, window=rows.window,
                     input_delay=None if input_profile is None else input_profile.as_dict())
     if spec.diagnose is not None:
@@ -357,7 +362,8 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     builders = (train_rows, test_rows.builders[label])
     model = out.model
     fit = spec.fit
-    selection = Selection(fit.estimator, fit.lambdas, fit.selection) if fit.estimator in SELECTING else None
+    selection = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability) \
+        if fit.estimator in SELECTING else None
     out.refinement = refine(model, out.train, out.test, settings.candidates, settings.min_improvement, steps,
                             velocity, window, builders=builders, selection=selection)
     model = out.refinement.model

@@ -32,7 +32,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
-from cvxid.identify.path import Selection
+from cvxid.identify.selection import Selection
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay
 from cvxid.metrics import fit_percent, noise_ceiling_percent
@@ -681,9 +681,9 @@ def _with_candidate(model: IdentifiedModel, name: str, dx: Diagnosis, train: Exp
 def _selected_anew(spec: ModelSpec, tau: float | None, train_rows: RegressionBuilder, test_rows: RegressionBuilder,
                    selection: Selection) -> list[str]:
     """The columns ``selection`` keeps of ``spec`` at the delay ``tau``, scored on the test rows."""
-    problem = Problem.from_regression(train_rows.at(tau, spec), spec.nonnegative)
-    keep = selection.support(problem, test_rows.at(tau, spec).residual)
-    return [n for n, k in zip(problem.names, keep) if k]
+    regression = train_rows.at(tau, spec)
+    keep = selection.choose(regression, spec.nonnegative, validate=test_rows.at(tau, spec).residual).keep
+    return [n for n, k in zip(regression.names, keep) if k]
 
 
 def _improvement(old: Comparison, new: Comparison) -> float:

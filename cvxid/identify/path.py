@@ -10,7 +10,7 @@ on the training data and, when a validation function is given, on held-out data.
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Callable
 
 import numpy as np
@@ -238,18 +238,3 @@ def _extended(lambdas: np.ndarray, side: str) -> np.ndarray:
     more = step * np.arange(1, count + 1)
     added = 10 ** (logs[0] + more) if side == "top" else 10 ** (logs[-1] - more)
     return np.sort(np.concatenate([lambdas, added]))[::-1]
-
-
-@dataclass(frozen=True)
-class Selection:
-    """A selector and its lambda rule, to select again elsewhere (the diagnosis selects the
-    library anew beside each effect it adds)."""
-
-    estimator: str = "adaptive_lasso"
-    lambdas: np.ndarray = field(default_factory=lambda: np.logspace(-6, 2, 50))
-    rule: str = "1se"
-
-    def support(self, problem: Problem, validate: Callable[[np.ndarray], np.ndarray]) -> np.ndarray:
-        """The columns the selector keeps (a boolean mask, unpenalised columns included)."""
-        _, fit = select(problem, self.lambdas, validate, self.estimator, True, None, self.rule)
-        return fit.support | (problem.penalties == 0)

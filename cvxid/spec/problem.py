@@ -18,6 +18,7 @@ from cvxid.data.experiment import Experiment, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
+from cvxid.identify.selection import StabilitySettings
 from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
 from cvxid.identify.path import SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
@@ -137,6 +138,7 @@ class FitSettings:
     debias: bool = True
     selection: str = "1se"
     bootstrap: "BootstrapSettings | None" = None
+    stability: "StabilitySettings | None" = field(default_factory=lambda: StabilitySettings())
     orders: tuple[int, ...] = ()
     refine: str | None = None
     window: float | str = "auto"
@@ -236,7 +238,7 @@ MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "con
 SELECTORS = PATH_ESTIMATORS + ("stepwise_oe",)
 """One equation's ``[fit] estimator`` values: the path's selectors and the stepwise search."""
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine", "window", "loss", "allow_large", "backend", "scheduler"}
+            "refine", "window", "loss", "allow_large", "backend", "scheduler", "stability"}
 
 
 def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
@@ -497,6 +499,7 @@ def _fit(table: Table) -> FitSettings:
         debias=_bool(table, "debias", where, True),
         selection=_string(table, "selection", where, "1se", choices=SELECTION_RULES),
         bootstrap=_bootstrap(table),
+        stability=_stability(table, _string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS)),
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
         window=_window(table, where),
@@ -529,6 +532,32 @@ def _window(table: Table, where: str) -> float | str | Windows:
         ((kind, _),) = kinds.items()
         return Windows(_number(kinds, kind, f"{where}.window", positive=True, within=(None, 1e6)), kind)
     return _number(table, "window", where, positive=True, within=(None, 1e6))
+
+
+CONVEX_SELECTORS = ("lasso", "adaptive_lasso")
+"""The selectors stability selection is on for by default (the paper's ``stlsq`` keeps its
+own rule unless a spec asks)."""
+
+
+def _stability(table: Table, estimator: str) -> StabilitySettings | None:
+    """``[fit] stability``: ``true`` (the default settings), ``false`` (off) or a table of
+    ``samples``, ``blocks``, ``threshold``, ``seed``; absent: on for :data:`CONVEX_SELECTORS`."""
+    value = table.get("stability", estimator in CONVEX_SELECTORS)
+    if isinstance(value, bool):
+        return StabilitySettings() if value else None
+    if not isinstance(value, Mapping):
+        raise CvxidError(f"spec: [fit] stability is true, false or a table {{ samples = 20, blocks = 10, "
+                         f"threshold = 0.7, seed = 0 }}, got {value!r}")
+    t = _table(table, "stability", "fit", {"samples", "blocks", "threshold", "seed"})
+    return StabilitySettings(
+        samples=_number(t, "samples", "fit.stability", 20, integer=True, within=(2, 1000),
+                        fix="halves of the record, each selected once"),
+        blocks=_number(t, "blocks", "fit.stability", 10, integer=True, within=(2, 100),
+                       fix="contiguous blocks the record's rows are cut into; each half keeps half of them"),
+        threshold=_number(t, "threshold", "fit.stability", 0.7, within=(0.5, 1),
+                          fix="the share of halves that must keep a term"),
+        seed=_number(t, "seed", "fit.stability", 0, integer=True, within=(0, 2**32 - 1)),
+    )
 
 
 def _bootstrap(table: Table) -> BootstrapSettings | None:

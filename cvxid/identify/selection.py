@@ -1,0 +1,144 @@
+r"""Choosing the terms: a selector, its :math:`\lambda` rule and stability selection.
+
+A :class:`Selection` runs the path (:func:`~cvxid.identify.path.select`) on the whole
+training record, then, with :class:`StabilitySettings`, again on :math:`K` halves of it.
+The regression's rows are windows that overlap, so neighbouring rows share their noise:
+the record's rows are cut into :math:`B` contiguous blocks and each sample keeps
+:math:`B/2` of them, drawn without replacement; each half is validated as the whole record
+is (by the test record, or by blocked cross-validation over its own rows).  A term's inclusion probability is the
+share of samples whose selection kept it,
+
+.. math::
+
+    \hat\pi_j = \frac{1}{K}\sum_{k=1}^{K} \mathbf 1\{c^{(k)}_j \ne 0\},
+
+and the stable support is :math:`\{j : \hat\pi_j \ge \pi_{\text{thr}}\}` plus every
+unpenalised column (Meinshausen and Bühlmann's stability selection, here with the run's
+own selector and :math:`\lambda` rule on each half rather than a fixed :math:`\lambda`).
+A term that only fits one stretch's noise (a velocity term standing in for the velocity
+estimate's error) enters on some halves and not on others; a true term enters on nearly
+all.  The coefficients are the least squares of the stable support on every row.
+
+Measured on the held-out benchmark's selection mode (tuning seeds 0–9, 18 candidate terms,
+the adaptive lasso with the 1se rule): exactly the true terms in 56 → 76 % of the systems
+at noise 0.01 and 64 → 88 % at 0.001 with :math:`K = 20`, :math:`B = 10`,
+:math:`\pi_{\text{thr}} = 0.7` (0.6–0.8 within 4 points of each other).
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+import pandas as pd
+
+from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.identify.path import Path, select
+from cvxid.identify.problem import Fit, Problem
+from cvxid.regression.regression import Regression
+
+
+@dataclass(frozen=True)
+class StabilitySettings:
+    """``samples`` halves of the record, cut into ``blocks`` contiguous blocks; a term is
+    kept when at least ``threshold`` of the samples kept it; ``seed`` of the draws."""
+
+    samples: int = 20
+    blocks: int = 10
+    threshold: float = 0.7
+    seed: int = 0
+
+    def __post_init__(self):
+        if isinstance(self.samples, bool) or not isinstance(self.samples, int) or not 2 <= self.samples <= 1000:
+            raise CvxidError(f"[fit] stability samples must be a whole number from 2 to 1000, got {self.samples!r}")
+        if isinstance(self.blocks, bool) or not isinstance(self.blocks, int) or not 2 <= self.blocks <= 100:
+            raise CvxidError(f"[fit] stability blocks must be a whole number from 2 to 100, got {self.blocks!r}")
+        if isinstance(self.threshold, bool) or not isinstance(self.threshold, (int, float)) \
+                or not 0.5 <= self.threshold <= 1.0:
+            raise CvxidError(f"[fit] stability threshold must lie in 0.5 … 1 (a share of the samples), "
+                             f"got {self.threshold!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise CvxidError(f"[fit] stability seed must be a whole number >= 0, got {self.seed!r}")
+
+    def as_dict(self) -> dict:
+        return {"samples": self.samples, "blocks": self.blocks, "threshold": self.threshold, "seed": self.seed}
+
+
+@dataclass
+class Stability:
+    """Each candidate's inclusion probability over the halves, and the settings."""
+
+    inclusion: pd.Series
+    settings: StabilitySettings
+
+    @property
+    def support(self) -> np.ndarray:
+        """The candidates kept on at least ``threshold`` of the halves (a boolean mask)."""
+        return self.inclusion.to_numpy() >= self.settings.threshold - 1e-12
+
+    def as_dict(self) -> dict:
+        return {**self.settings.as_dict(), "inclusion": {k: float(v) for k, v in self.inclusion.items()}}
+
+    def __repr__(self) -> str:
+        s = self.settings
+        kept = ", ".join(n for n, k in zip(self.inclusion.index, self.support) if k) or "none"
+        return (f"Stability selection ({s.samples} halves of {s.blocks} blocks, kept at >= {s.threshold:g}): "
+                f"{kept}\n" + self.inclusion.sort_values(ascending=False).to_string(float_format=lambda v: f"{v:.2f}"))
+
+
+@dataclass
+class Choice:
+    """What a :class:`Selection` chose: the whole record's path and fit, the columns kept
+    (unpenalised ones included) and, with stability selection, the inclusion probabilities."""
+
+    path: Path
+    fit: Fit
+    keep: np.ndarray
+    stability: Stability | None = None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """A selector, its lambda rule and (optionally) stability selection: the run's choice
+    of terms, and the diagnosis's when it selects the library anew beside an effect."""
+
+    estimator: str = "adaptive_lasso"
+    lambdas: np.ndarray = field(default_factory=lambda: np.logspace(-6, 2, 50))
+    rule: str = "1se"
+    stability: StabilitySettings | None = None
+
+    def choose(self, regression: Regression, nonnegative=(), solver: str = "CLARABEL",
+               validate: Callable[[np.ndarray], np.ndarray] | None = None, folds: int | None = None,
+               debias: bool = True, ties=()) -> Choice:
+        """Select on ``regression`` (validated by ``validate``, or by ``folds``-fold
+        cross-validation over time), then, with :attr:`stability`, on halves of it."""
+        problem = Problem.from_regression(regression, nonnegative, solver, ties=ties)
+        path, fit = select(problem, self.lambdas, validate, self.estimator, debias, folds, self.rule)
+        free = problem.penalties == 0
+        if self.stability is None or free.all():
+            return Choice(path, fit, fit.support | free)
+        stability = self._stability(regression, nonnegative, solver, validate, folds, debias, ties)
+        return Choice(path, fit, stability.support | free, stability)
+
+    def _stability(self, regression, nonnegative, solver, validate, folds, debias, ties) -> Stability:
+        settings = self.stability
+        n = regression.shape[0]
+        if n < 2 * settings.blocks:
+            raise CvxidError(f"[fit] stability: {n} regression rows cannot be cut into {settings.blocks} blocks of "
+                             "two rows or more; lower blocks or give a longer record")
+        edges = np.linspace(0, n, settings.blocks + 1).astype(int)
+        rng = np.random.default_rng(settings.seed)
+        kept = np.zeros(regression.shape[1])
+        for _ in range(settings.samples):
+            rows = np.zeros(n, bool)
+            for block in np.sort(rng.choice(settings.blocks, settings.blocks // 2, replace=False)):
+                rows[edges[block]:edges[block + 1]] = True
+            half = Problem.from_regression(replace(regression, P=regression.P[rows], p=regression.p[rows]),
+                                           nonnegative, solver, ties=ties)
+            with warnings.catch_warnings():  # a half's grid edge is the whole record's warning, said once
+                warnings.simplefilter("ignore", CvxidWarning)
+                _, fit = select(half, self.lambdas, validate, self.estimator, debias, folds, self.rule)
+            kept += fit.support
+        return Stability(pd.Series(kept / settings.samples, index=list(regression.names)), settings)
