@@ -170,15 +170,17 @@ class Path:
 
     def _accepted(self, rule: str) -> np.ndarray:
         """Indices (largest lambda first) whose validation error the rule accepts."""
+        return np.flatnonzero(self.validation <= self.bound(rule))
+
+    def bound(self, rule: str = "min") -> float:
+        """The largest validation error ``rule`` accepts: the least (``"min"``), or the least
+        plus its block standard error (``"1se"``)."""
         if rule not in SELECTION_RULES:
             raise CvxidError(f"unknown selection rule '{rule}'; use one of {', '.join(SELECTION_RULES)}")
         if np.all(np.isnan(self.validation)):
             raise CvxidError("this path has no validation error; give a validation experiment")
         i = int(np.nanargmin(self.validation))
-        bound = self.validation[i] * (1 + 1e-9)
-        if rule == "1se":
-            bound += self.validation_se[i]
-        return np.flatnonzero(self.validation <= bound)
+        return float(self.validation[i] * (1 + 1e-9) + (self.validation_se[i] if rule == "1se" else 0.0))
 
     def open_edge(self, rule: str = "min") -> str | None:
         """Where the rule's choice may lie beyond the grid: ``"top"`` when it chooses the
