@@ -12,38 +12,54 @@ from cvxid.spec.load import load_problem
 from cvxid.tools.heldout import draw, run_one, write
 
 
-def _regression(rng, n=2000):
+def _regression(rng, n=2000, disturbance=0.5):
     """Three true columns, two of noise, and one that explains a disturbance of the first
-    tenth of the record only."""
+    tenth of the record only (none in a test record: ``disturbance = 0``)."""
     P = rng.standard_normal((n, 6))
     local = np.zeros(n)
     local[: n // 10] = rng.standard_normal(n // 10)
     P[:, 5] = local + 0.05 * rng.standard_normal(n)
-    p = P[:, :3] @ np.array([1.0, -2.0, 0.5]) + 0.5 * local + 0.1 * rng.standard_normal(n)
+    p = P[:, :3] @ np.array([1.0, -2.0, 0.5]) + disturbance * local + 0.1 * rng.standard_normal(n)
     names = ("a", "b", "c", "noise1", "noise2", "local")
     return Regression(P, p, names, ("library",) * 6, np.ones(6))
 
 
+def _check(reg):
+    return lambda c: reg.P @ c - reg.p
+
+
 @pytest.mark.parametrize("seed", [0, 1])
 def test_the_true_terms_are_kept_on_every_half_and_the_others_on_few(seed):
-    reg = _regression(np.random.default_rng(seed))
-    assert Selection("adaptive_lasso", rule="1se").choose(reg, folds=5).stability is None  # off unless asked
-    stable = Selection("adaptive_lasso", rule="1se", stability=StabilitySettings()).choose(reg, folds=5)
+    reg, test = _regression(np.random.default_rng(seed)), _regression(np.random.default_rng(seed + 100), disturbance=0)
+    assert Selection("adaptive_lasso", rule="1se").choose(reg, validate=_check(test)).stability is None  # off
+    stable = Selection("adaptive_lasso", rule="1se", stability=StabilitySettings()).choose(reg, validate=_check(test))
     inclusion = stable.stability.inclusion
     assert (inclusion[["a", "b", "c"]] == 1.0).all()
     assert inclusion[["noise1", "noise2", "local"]].max() < 0.3  # measured 0 and 0
     assert list(stable.keep) == [True, True, True, False, False, False]
     assert "Stability selection (20 halves of 10 blocks, kept at >= 0.7): a, b, c" in repr(stable.stability)
+    assert stable.stability.accepted
+    # without a test record there is nothing to check a stable support by: the whole record's choice
+    assert Selection(stability=StabilitySettings()).choose(reg, folds=5).stability is None
+
+
+def test_a_column_zero_on_some_halves_skips_them_instead_of_failing():
+    reg, test = _regression(np.random.default_rng(2)), _regression(np.random.default_rng(3))
+    late = reg.P.copy()
+    late[: reg.shape[0] // 2, 2] = 0.0  # the third term's input starts half-way through the record
+    reg = Regression(late, late[:, :3] @ np.array([1.0, -2.0, 0.5]), reg.names, reg.groups, reg.penalties)
+    stable = Selection(stability=StabilitySettings()).choose(reg, validate=_check(test))
+    assert stable.stability.inclusion["a"] == 1.0  # the halves that could be fitted
 
 
 def test_the_settings_are_checked_by_name():
     with pytest.raises(CvxidError, match="stability threshold must lie in 0.5 … 1"):
         StabilitySettings(threshold=0.3)
-    with pytest.raises(CvxidError, match="stability blocks must be a whole number from 2 to 100"):
-        StabilitySettings(blocks=1)
+    with pytest.raises(CvxidError, match="stability blocks must be an even whole number from 4 to 100"):
+        StabilitySettings(blocks=5)
     reg = _regression(np.random.default_rng(1), n=30)
     with pytest.raises(CvxidError, match="30 regression rows cannot be cut into 20 blocks"):
-        Selection(stability=StabilitySettings(blocks=20)).choose(reg, folds=5)
+        Selection(stability=StabilitySettings(blocks=20)).choose(reg, validate=_check(reg))
 
 
 def test_a_spec_turns_it_off_or_sets_it_and_bad_values_name_the_field(tmp_path):
@@ -60,6 +76,9 @@ def test_a_spec_turns_it_off_or_sets_it_and_bad_values_name_the_field(tmp_path):
     assert load_problem("paper_duffing_exact").fit.stability is None
     path.write_text(text.replace("[fit]\n", "[fit]\nstability = { threshold = 0.2 }\n"))
     with pytest.raises(CvxidError, match=r"\[fit.stability\] threshold"):
+        load_problem(path)
+    path.write_text(text.replace("[fit]\n", "[fit]\nestimator = \"lstsq\"\nstability = true\n"))
+    with pytest.raises(CvxidError, match="estimator = 'lstsq' selects nothing"):
         load_problem(path)
     path.write_text(text.replace("[fit]\n", "[fit]\nstability = \"yes\"\n"))
     with pytest.raises(CvxidError, match="stability is true, false or a table"):

@@ -225,11 +225,14 @@ def _identify(spec) -> RunResult:
         best = path.fits[-1]
         keep = best.support | (problem.penalties == 0)
     else:  # stability selection for one equation (a coupled system's rows are its equations' stacked)
-        choice = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability if one else None).choose(
+        # (the bootstrap selects on each of its samples and its mean is the estimate)
+        stability = fit.stability if one and not fit.bootstrap else None
+        choice = Selection(fit.estimator, fit.lambdas, fit.selection, stability).choose(
             regression, system.nonnegative, fit.solver, validation.residual if validation else None, folds,
             fit.debias, system.ties)
         path, best, keep, stable = choice.path, choice.fit, choice.keep, choice.stability
-    chosen = best if stable is None else problem.refit(keep)
+    taken = stable is not None and stable.accepted
+    chosen = problem.refit(keep) if taken else best
     coefs = dict(zip(problem.names, np.where(keep, chosen.coefficients, 0.0)))
     if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
         system = system.selected([n for n, k in zip(problem.names, keep) if k])
@@ -257,7 +260,7 @@ def _identify(spec) -> RunResult:
         coefs = dict(zip(problem.names, np.where(keep, robust.coefficients, 0.0)))
     selects = fit.estimator != "lstsq" and bool(problem.penalties.any())  # listed terms only: nothing to select
     lam = best.lam if selects else 0.0  # least squares: no penalty, nothing selected
-    info = {"method": "equation_error", "lambda": lam}
+    info = {"method": "equation_error", "lambda": lam, **({"support": "stability selection"} if taken else {})}
     if profile is not None:
         info["tau_interval"] = list(profile.interval)
     result = identified(system, {n: float(c) for n, c in coefs.items()}, tau, lam, profile, info)

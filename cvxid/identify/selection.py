@@ -5,7 +5,8 @@ training record, then, with :class:`StabilitySettings`, again on :math:`K` halve
 The regression's rows are windows that overlap, so neighbouring rows share their noise:
 the record's rows are cut into :math:`B` contiguous blocks and each sample keeps
 :math:`B/2` of them, drawn without replacement; each half is validated as the whole record
-is (by the test record, or by blocked cross-validation over its own rows).  A term's inclusion probability is the
+is, by the test record (without one there is nothing to check the stable support by, and
+the whole record's selection is kept).  A term's inclusion probability is the
 share of samples whose selection kept it,
 
 .. math::
@@ -17,7 +18,8 @@ unpenalised column (Meinshausen and Bühlmann's stability selection, here with t
 own selector and :math:`\lambda` rule on each half rather than a fixed :math:`\lambda`).
 A term that only fits one stretch's noise (a velocity term standing in for the velocity
 estimate's error) enters on some halves and not on others; a true term enters on nearly
-all.  The coefficients are the least squares of the stable support on every row.  With a
+all.  The coefficients are the least squares of the stable support on every row (whatever
+``debias``).  With a
 test record the stable support is taken only when its validation error is one the
 :math:`\lambda` rule accepts on the whole record's path (within the least error, plus its
 standard error for ``1se``): a half has less power to tell a damping from the delay
@@ -58,8 +60,10 @@ class StabilitySettings:
     def __post_init__(self):
         if isinstance(self.samples, bool) or not isinstance(self.samples, int) or not 2 <= self.samples <= 1000:
             raise CvxidError(f"[fit] stability samples must be a whole number from 2 to 1000, got {self.samples!r}")
-        if isinstance(self.blocks, bool) or not isinstance(self.blocks, int) or not 2 <= self.blocks <= 100:
-            raise CvxidError(f"[fit] stability blocks must be a whole number from 2 to 100, got {self.blocks!r}")
+        if isinstance(self.blocks, bool) or not isinstance(self.blocks, int) or not 4 <= self.blocks <= 100 \
+                or self.blocks % 2:
+            raise CvxidError(f"[fit] stability blocks must be an even whole number from 4 to 100 (each half keeps "
+                             f"half of them), got {self.blocks!r}")
         if isinstance(self.threshold, bool) or not isinstance(self.threshold, (int, float)) \
                 or not 0.5 <= self.threshold <= 1.0:
             raise CvxidError(f"[fit] stability threshold must lie in 0.5 … 1 (a share of the samples), "
@@ -128,16 +132,15 @@ class Selection:
         problem = Problem.from_regression(regression, nonnegative, solver, ties=ties)
         path, fit = select(problem, self.lambdas, validate, self.estimator, debias, folds, self.rule)
         free = problem.penalties == 0
-        if self.stability is None or free.all():
+        if self.stability is None or free.all() or validate is None:  # (no test record: nothing to check it by)
             return Choice(path, fit, fit.support | free)
-        stability = self._stability(regression, nonnegative, solver, validate, folds, debias, ties)
+        stability = self._stability(regression, nonnegative, solver, validate, debias, ties)
         keep = stability.support | free
-        if validate is not None:  # the stable support, refitted, must be one the lambda rule accepts
-            error = float(np.mean(validate(problem.refit(keep).coefficients) ** 2))
-            stability.accepted = error <= path.bound(self.rule)
+        # the stable support, refitted by least squares, must be one the lambda rule accepts
+        stability.accepted = float(np.mean(validate(problem.refit(keep).coefficients) ** 2)) <= path.bound(self.rule)
         return Choice(path, fit, keep if stability.accepted else fit.support | free, stability)
 
-    def _stability(self, regression, nonnegative, solver, validate, folds, debias, ties) -> Stability:
+    def _stability(self, regression, nonnegative, solver, validate, debias, ties) -> Stability:
         settings = self.stability
         n = regression.shape[0]
         if n < 2 * settings.blocks:
@@ -145,15 +148,22 @@ class Selection:
                              "two rows or more; lower blocks or give a longer record")
         edges = np.linspace(0, n, settings.blocks + 1).astype(int)
         rng = np.random.default_rng(settings.seed)
-        kept = np.zeros(regression.shape[1])
+        kept, halves = np.zeros(regression.shape[1]), 0
         for _ in range(settings.samples):
             rows = np.zeros(n, bool)
             for block in np.sort(rng.choice(settings.blocks, settings.blocks // 2, replace=False)):
                 rows[edges[block]:edges[block + 1]] = True
-            half = Problem.from_regression(replace(regression, P=regression.P[rows], p=regression.p[rows]),
-                                           nonnegative, solver, ties=ties)
-            with warnings.catch_warnings():  # a half's grid edge is the whole record's warning, said once
+            with warnings.catch_warnings():  # a half's warnings (its grid's edge) are the whole record's, said once
                 warnings.simplefilter("ignore", CvxidWarning)
-                _, fit = select(half, self.lambdas, validate, self.estimator, debias, folds, self.rule)
+                try:
+                    half = Problem.from_regression(replace(regression, P=regression.P[rows], p=regression.p[rows]),
+                                                   nonnegative, solver, ties=ties)
+                except CvxidError:  # a column zero on this half (a record whose forcing starts late): skip it
+                    continue
+                _, fit = select(half, self.lambdas, validate, self.estimator, debias, None, self.rule)
             kept += fit.support
-        return Stability(pd.Series(kept / settings.samples, index=list(regression.names)), settings)
+            halves += 1
+        if halves == 0:
+            raise CvxidError("[fit] stability: no half of the record can be fitted on its own (a column is zero on "
+                             "each); set stability = false")
+        return Stability(pd.Series(kept / halves, index=list(regression.names)), settings)

@@ -64,7 +64,8 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
-    fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator)
+    fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator,
+                  stability=None)  # (stability selection is for one equation: a coupled spec cannot ask)
     if fit.velocity not in ESTIMATORS + ("measured", "auto"):
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)}, "
                          f"'measured' or 'auto', got '{fit.velocity}'")

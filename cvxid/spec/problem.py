@@ -20,7 +20,7 @@ from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import BootstrapSettings
 from cvxid.identify.selection import StabilitySettings
 from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
-from cvxid.identify.path import SELECTION_RULES
+from cvxid.identify.path import SELECTING, SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
@@ -138,7 +138,7 @@ class FitSettings:
     debias: bool = True
     selection: str = "1se"
     bootstrap: "BootstrapSettings | None" = None
-    stability: "StabilitySettings | None" = field(default_factory=lambda: StabilitySettings())
+    stability: "StabilitySettings | None" = None  # a spec's default: on for lasso and adaptive_lasso
     orders: tuple[int, ...] = ()
     refine: str | None = None
     window: float | str = "auto"
@@ -543,6 +543,9 @@ def _stability(table: Table, estimator: str) -> StabilitySettings | None:
     """``[fit] stability``: ``true`` (the default settings), ``false`` (off) or a table of
     ``samples``, ``blocks``, ``threshold``, ``seed``; absent: on for :data:`CONVEX_SELECTORS`."""
     value = table.get("stability", estimator in CONVEX_SELECTORS)
+    if "stability" in table and value is not False and estimator not in SELECTING:
+        raise CvxidError(f"spec: [fit] stability repeats a selection, and estimator = '{estimator}' selects nothing "
+                         "on a lambda path; remove stability, or choose lasso, adaptive_lasso or stlsq")
     if isinstance(value, bool):
         return StabilitySettings() if value else None
     if not isinstance(value, Mapping):
@@ -552,8 +555,9 @@ def _stability(table: Table, estimator: str) -> StabilitySettings | None:
     return StabilitySettings(
         samples=_number(t, "samples", "fit.stability", 20, integer=True, within=(2, 1000),
                         fix="halves of the record, each selected once"),
-        blocks=_number(t, "blocks", "fit.stability", 10, integer=True, within=(2, 100),
-                       fix="contiguous blocks the record's rows are cut into; each half keeps half of them"),
+        blocks=_number(t, "blocks", "fit.stability", 10, integer=True, within=(4, 100),
+                       fix="an even number of contiguous blocks the record's rows are cut into; each half keeps "
+                           "half of them"),
         threshold=_number(t, "threshold", "fit.stability", 0.7, within=(0.5, 1),
                           fix="the share of halves that must keep a term"),
         seed=_number(t, "seed", "fit.stability", 0, integer=True, within=(0, 2**32 - 1)),
