@@ -37,7 +37,7 @@ def test_the_true_terms_are_kept_on_every_half_and_the_others_on_few(seed):
     assert (inclusion[["a", "b", "c"]] == 1.0).all()
     assert inclusion[["noise1", "noise2", "local"]].max() < 0.3  # measured 0 and 0
     assert list(stable.keep) == [True, True, True, False, False, False]
-    assert "Stability selection (20 halves of 10 blocks, kept at >= 0.7): a, b, c" in repr(stable.stability)
+    assert "Stability selection (20 halves of 10 blocks, candidates kept at >= 0.7): a, b, c" in repr(stable.stability)
     assert stable.stability.accepted
     # without a test record there is nothing to check a stable support by: the whole record's choice
     assert Selection(stability=StabilitySettings()).choose(reg, folds=5).stability is None

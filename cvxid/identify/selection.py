@@ -84,6 +84,8 @@ class Stability:
     accepted: bool = True
     """False when the stable support's validation error lay beyond the lambda rule's bound
     (the whole record's selection was kept)."""
+    candidates: tuple[str, ...] = ()
+    """The penalised columns (the printout lists these; the others are always kept)."""
 
     @property
     def support(self) -> np.ndarray:
@@ -96,11 +98,12 @@ class Stability:
 
     def __repr__(self) -> str:
         s = self.settings
-        kept = ", ".join(n for n, k in zip(self.inclusion.index, self.support) if k) or "none"
+        shown = self.inclusion[list(self.candidates)] if self.candidates else self.inclusion
+        kept = ", ".join(n for n, v in shown.items() if v >= s.threshold - 1e-12) or "none"
         verdict = "" if self.accepted else " (not taken: its validation error is beyond the lambda rule's bound)"
-        return (f"Stability selection ({s.samples} halves of {s.blocks} blocks, kept at >= {s.threshold:g}): "
-                f"{kept}{verdict}\n"
-                + self.inclusion.sort_values(ascending=False).to_string(float_format=lambda v: f"{v:.2f}"))
+        return (f"Stability selection ({s.samples} halves of {s.blocks} blocks, candidates kept at >= "
+                f"{s.threshold:g}): {kept}{verdict}\n"
+                + shown.sort_values(ascending=False).to_string(float_format=lambda v: f"{v:.2f}"))
 
 
 @dataclass
@@ -166,4 +169,6 @@ class Selection:
         if halves == 0:
             raise CvxidError("[fit] stability: no half of the record can be fitted on its own (a column is zero on "
                              "each); set stability = false")
-        return Stability(pd.Series(kept / halves, index=list(regression.names)), settings)
+        names = list(regression.names)
+        return Stability(pd.Series(kept / halves, index=names), settings,
+                         candidates=tuple(n for n, w in zip(names, regression.penalties) if w > 0))
