@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from cvxid import CvxidError
+from cvxid.identify.problem import Problem
 from cvxid.identify.selection import Selection, StabilitySettings
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
@@ -31,8 +32,10 @@ def _check(reg):
 @pytest.mark.parametrize("seed", [0, 1])
 def test_the_true_terms_are_kept_on_every_half_and_the_others_on_few(seed):
     reg, test = _regression(np.random.default_rng(seed)), _regression(np.random.default_rng(seed + 100), disturbance=0)
-    assert Selection("adaptive_lasso", rule="1se").choose(reg, validate=_check(test)).stability is None  # off
-    stable = Selection("adaptive_lasso", rule="1se", stability=StabilitySettings()).choose(reg, validate=_check(test))
+    plain = Selection("adaptive_lasso", rule="1se").choose(Problem.from_regression(reg), _check(test))
+    assert plain.stability is None  # off unless asked
+    stable = Selection("adaptive_lasso", rule="1se", stability=StabilitySettings()).choose(
+        Problem.from_regression(reg), _check(test))
     inclusion = stable.stability.inclusion
     assert (inclusion[["a", "b", "c"]] == 1.0).all()
     assert inclusion[["noise1", "noise2", "local"]].max() < 0.3  # measured 0 and 0
@@ -40,7 +43,7 @@ def test_the_true_terms_are_kept_on_every_half_and_the_others_on_few(seed):
     assert "Stability selection (20 halves of 10 blocks, candidates kept at >= 0.7): a, b, c" in repr(stable.stability)
     assert stable.stability.accepted
     # without a test record there is nothing to check a stable support by: the whole record's choice
-    assert Selection(stability=StabilitySettings()).choose(reg, folds=5).stability is None
+    assert Selection(stability=StabilitySettings()).choose(Problem.from_regression(reg), folds=5).stability is None
 
 
 def test_a_column_zero_on_some_halves_skips_them_instead_of_failing():
@@ -48,7 +51,7 @@ def test_a_column_zero_on_some_halves_skips_them_instead_of_failing():
     late = reg.P.copy()
     late[: reg.shape[0] // 2, 2] = 0.0  # the third term's input starts half-way through the record
     reg = Regression(late, late[:, :3] @ np.array([1.0, -2.0, 0.5]), reg.names, reg.groups, reg.penalties)
-    stable = Selection(stability=StabilitySettings()).choose(reg, validate=_check(test))
+    stable = Selection(stability=StabilitySettings()).choose(Problem.from_regression(reg), _check(test))
     assert stable.stability.inclusion["a"] == 1.0  # the halves that could be fitted
 
 
@@ -59,7 +62,7 @@ def test_the_settings_are_checked_by_name():
         StabilitySettings(blocks=5)
     reg = _regression(np.random.default_rng(1), n=30)
     with pytest.raises(CvxidError, match="30 regression rows cannot be cut into 20 blocks"):
-        Selection(stability=StabilitySettings(blocks=20)).choose(reg, validate=_check(reg))
+        Selection(stability=StabilitySettings(blocks=20)).choose(Problem.from_regression(reg), _check(reg))
 
 
 def test_a_spec_turns_it_off_or_sets_it_and_bad_values_name_the_field(tmp_path):

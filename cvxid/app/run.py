@@ -119,7 +119,7 @@ def _warn_implausible(out: RunResult) -> None:
         return
     candidates = out.problem.penalties > 0
     chosen = np.array([out.system.coefficients.get(n, 0.0) != 0 for n in out.problem.names])
-    if candidates.any() and candidates.sum() > 2 and (chosen | ~candidates).all() and out.lam <= out.path.lambdas.min():
+    if candidates.sum() > 2 and (chosen | ~candidates).all() and out.lam <= out.path.lambdas.min():
         warnings.warn(
             f"the selection kept every one of the {int(candidates.sum())} candidate terms: lambda = {out.lam:.3g} is "
             "the bottom of its grid, so the validation error was least with no term dropped; the data do not tell "
@@ -228,8 +228,7 @@ def _identify(spec) -> RunResult:
         # (the bootstrap selects on each of its samples and its mean is the estimate)
         stability = fit.stability if one and not fit.bootstrap else None
         choice = Selection(fit.estimator, fit.lambdas, fit.selection, stability).choose(
-            regression, system.nonnegative, fit.solver, validation.residual if validation else None, folds,
-            fit.debias, system.ties)
+            problem, validation.residual if validation else None, folds, fit.debias)
         path, best, keep, stable = choice.path, choice.fit, choice.keep, choice.stability
     taken = stable is not None and stable.accepted
     chosen = problem.refit(keep) if taken else best

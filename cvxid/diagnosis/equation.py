@@ -631,9 +631,10 @@ def refine(
         best = dx.top
         if not dx.ranking.loc[best, "validation_ratio"] >= 1 + min_improvement:  # (NaN: no evidence either)
             break
-        before = _test_mse(model, test_rows)
+        # (the model's test error and free run: those of the last accepted step, else computed once)
+        before = steps[-1].test_mse_after if steps else _test_mse(model, test_rows)
+        old_cmp = comparisons[-1] if comparisons else compare(model, test, initial="record")
         group = next(g for g in dx.groups if best in g)
-        old_cmp = compare(model, test, initial="record")
         # the equation error cannot tell a collinear group's members apart: of those that
         # lower it enough, the free run of the test record chooses
         rivals = [best] if best in ("delay", "input_delay") else [
@@ -681,9 +682,9 @@ def _with_candidate(model: IdentifiedModel, name: str, dx: Diagnosis, train: Exp
 def _selected_anew(spec: ModelSpec, tau: float | None, train_rows: RegressionBuilder, test_rows: RegressionBuilder,
                    selection: Selection) -> list[str]:
     """The columns ``selection`` keeps of ``spec`` at the delay ``tau``, scored on the test rows."""
-    regression = train_rows.at(tau, spec)
-    keep = selection.choose(regression, spec.nonnegative, validate=test_rows.at(tau, spec).residual).keep
-    return [n for n, k in zip(regression.names, keep) if k]
+    problem = Problem.from_regression(train_rows.at(tau, spec), spec.nonnegative)
+    keep = selection.choose(problem, validate=test_rows.at(tau, spec).residual).keep
+    return [n for n, k in zip(problem.names, keep) if k]
 
 
 def _improvement(old: Comparison, new: Comparison) -> float:

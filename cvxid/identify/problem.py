@@ -307,13 +307,13 @@ class Problem:
         :math:`\lambda` to enter.  On collinear libraries the plain lasso's path can miss the
         true support altogether (a correlated wrong term enters first); these weights restore
         it when least squares ranks the columns right (``notes/selection.md``)."""
+        penalised = self.penalties > 0
+        if not penalised.any():
+            return self
         red = self.reduced
         Q, R = np.linalg.qr(np.vstack([red.R, np.sqrt(ADAPTIVE_RIDGE * red.rows) * np.eye(self.k)]))
         ridged = replace(red, R=R, r=Q.T @ np.concatenate([red.r, np.zeros(self.k)]))
         ls = np.abs(constrained_least_squares(ridged, self.names, np.ones(self.k, bool), self.nonnegative, self.ties))
-        penalised = self.penalties > 0
-        if not penalised.any():
-            return self
         top = ls[penalised].max()
         if top == 0:
             return self

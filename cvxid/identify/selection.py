@@ -44,7 +44,6 @@ import pandas as pd
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import Path, select
 from cvxid.identify.problem import Fit, Problem
-from cvxid.regression.regression import Regression
 
 
 @dataclass(frozen=True)
@@ -98,8 +97,9 @@ class Stability:
 
     def __repr__(self) -> str:
         s = self.settings
-        shown = self.inclusion[list(self.candidates)] if self.candidates else self.inclusion
-        kept = ", ".join(n for n, v in shown.items() if v >= s.threshold - 1e-12) or "none"
+        listed = self.inclusion.index.isin(self.candidates) if self.candidates else np.ones(len(self.inclusion), bool)
+        shown = self.inclusion[listed]
+        kept = ", ".join(shown.index[self.support[listed]]) or "none"
         verdict = "" if self.accepted else " (not taken: its validation error is beyond the lambda rule's bound)"
         return (f"Stability selection ({s.samples} halves of {s.blocks} blocks, candidates kept at >= "
                 f"{s.threshold:g}): {kept}{verdict}\n"
@@ -127,40 +127,41 @@ class Selection:
     rule: str = "1se"
     stability: StabilitySettings | None = None
 
-    def choose(self, regression: Regression, nonnegative=(), solver: str = "CLARABEL",
-               validate: Callable[[np.ndarray], np.ndarray] | None = None, folds: int | None = None,
-               debias: bool = True, ties=()) -> Choice:
-        """Select on ``regression`` (validated by ``validate``, or by ``folds``-fold
-        cross-validation over time), then, with :attr:`stability`, on halves of it."""
-        problem = Problem.from_regression(regression, nonnegative, solver, ties=ties)
+    def choose(self, problem: Problem, validate: Callable[[np.ndarray], np.ndarray] | None = None,
+               folds: int | None = None, debias: bool = True) -> Choice:
+        """Select on ``problem`` (validated by ``validate``, or by ``folds``-fold
+        cross-validation over time), then, with :attr:`stability`, on halves of its rows
+        (a problem built by :meth:`~cvxid.identify.problem.Problem.from_regression`)."""
         path, fit = select(problem, self.lambdas, validate, self.estimator, debias, folds, self.rule)
         free = problem.penalties == 0
         if self.stability is None or free.all() or validate is None:  # (no test record: nothing to check it by)
             return Choice(path, fit, fit.support | free)
-        stability = self._stability(regression, nonnegative, solver, validate, debias, ties)
+        stability = self._stability(problem, validate, debias)
         keep = stability.support | free
         # the stable support, refitted by least squares, must be one the lambda rule accepts
         stability.accepted = float(np.mean(validate(problem.refit(keep).coefficients) ** 2)) <= path.bound(self.rule)
         return Choice(path, fit, keep if stability.accepted else fit.support | free, stability)
 
-    def _stability(self, regression, nonnegative, solver, validate, debias, ties) -> Stability:
-        settings = self.stability
+    def _stability(self, problem: Problem, validate, debias: bool) -> Stability:
+        settings, regression = self.stability, problem.regression
+        if regression is None:
+            raise CvxidError("stability selection needs the rows: build the problem with Problem.from_regression")
         n = regression.shape[0]
         if n < 2 * settings.blocks:
             raise CvxidError(f"[fit] stability: {n} regression rows cannot be cut into {settings.blocks} blocks of "
                              "two rows or more; lower blocks or give a longer record")
         edges = np.linspace(0, n, settings.blocks + 1).astype(int)
         rng = np.random.default_rng(settings.seed)
-        kept, halves = np.zeros(regression.shape[1]), 0
+        kept, halves = np.zeros(problem.k), 0
         for _ in range(settings.samples):
             rows = np.zeros(n, bool)
-            for block in np.sort(rng.choice(settings.blocks, settings.blocks // 2, replace=False)):
+            for block in rng.choice(settings.blocks, settings.blocks // 2, replace=False):
                 rows[edges[block]:edges[block + 1]] = True
             with warnings.catch_warnings():  # a half's warnings (its grid's edge) are the whole record's, said once
                 warnings.simplefilter("ignore", CvxidWarning)
                 try:
                     half = Problem.from_regression(replace(regression, P=regression.P[rows], p=regression.p[rows]),
-                                                   nonnegative, solver, ties=ties)
+                                                   problem.nonnegative, problem.solver, ties=problem.ties)
                 except CvxidError:  # a column zero on this half (a record whose forcing starts late): skip it
                     continue
                 _, fit = select(half, self.lambdas, validate, self.estimator, debias, None, self.rule)
@@ -169,6 +170,5 @@ class Selection:
         if halves == 0:
             raise CvxidError("[fit] stability: no half of the record can be fitted on its own (a column is zero on "
                              "each); set stability = false")
-        names = list(regression.names)
-        return Stability(pd.Series(kept / halves, index=names), settings,
-                         candidates=tuple(n for n, w in zip(names, regression.penalties) if w > 0))
+        return Stability(pd.Series(kept / halves, index=list(problem.names)), settings,
+                         candidates=tuple(n for n, w in zip(problem.names, problem.penalties) if w > 0))

@@ -489,17 +489,18 @@ def _fit(table: Table) -> FitSettings:
         scheduler = _string(table, "scheduler", where, "")
     check_backend(backend, scheduler, where=f"spec: [{where}] backend")
     n_jobs(table)
+    estimator = _string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS)
     settings = FitSettings(
         backend=backend,
         scheduler=scheduler,
-        estimator=_string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS),
+        estimator=estimator,
         lambdas=lambdas,
         velocity=velocity,
         solver=solver,
         debias=_bool(table, "debias", where, True),
         selection=_string(table, "selection", where, "1se", choices=SELECTION_RULES),
         bootstrap=_bootstrap(table),
-        stability=_stability(table, _string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS)),
+        stability=_stability(table, estimator),
         orders=_orders(table),
         refine=_string(table, "refine", where, "none", choices=("none", "output_error")).replace("none", "") or None,
         window=_window(table, where),
