@@ -354,7 +354,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
             raise CvxidError("[diagnose] scores effects on the test data: add [data.test]")
         return
     if out.coupled:
-        out.refinement = refine_joint(out.system, out.train, out.test, settings.candidates, settings.min_improvement,
+        out.refinement = refine_joint(out.system, out.train, out.test, settings.candidates,
                                       steps, velocity, window, (rows, test_rows))
         out.system = out.refinement.result
         out.tau = {"estimate": out.system.tau, "interval": out.system.info.get("tau_interval"),
@@ -366,7 +366,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     fit = spec.fit
     selection = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability) \
         if fit.estimator in SELECTING else None
-    out.refinement = refine(model, out.train, out.test, settings.candidates, settings.min_improvement, steps,
+    out.refinement = refine(model, out.train, out.test, settings.candidates, steps,
                             velocity, window, builders=builders, selection=selection)
     model = out.refinement.model
     out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(

@@ -7,10 +7,11 @@ the test data, :math:`\text{ratio} = \text{MSE}_\text{test}(\text{with}) /
 \text{MSE}_\text{test}(\text{without})`.  One regression holding every candidate column is
 built once; each candidate is a column subset of it.
 
-:func:`refine_joint` adds the best candidate while its own ratio, the test equation error
-of the re-identified model (delay profiled again) and the free-run simulation error of the
-test (every coordinate, relative to its spread) all fall by at least ``min_improvement``:
-a re-profiled delay alone can lower the errors of a spurious term.
+:func:`refine_joint` adds the best candidate while it passes the one acceptance rule of
+:mod:`cvxid.diagnosis.acceptance`: its own ratio below 1, its inclusion probability over
+halves of the training rows, and a lower test equation error and free-run simulation
+error (every coordinate, relative to its spread) of the re-identified model (delay
+profiled again: a re-profiled delay alone can lower the errors of a spurious term).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.acceptance import accepted, inclusion
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.problem import Problem
@@ -32,6 +34,7 @@ from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Term
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
+from cvxid.regression.regression import Regression
 
 
 def candidate_terms(specs: dict[str, ModelSpec], candidates: Sequence[str] | None = None) -> dict[str, Term]:
@@ -142,18 +145,16 @@ class JointRefinement:
             lines.append("Refinement:")
             lines += ["  " + line for line in self.table().to_string(index=False).splitlines()]
         else:
-            lines.append("Refinement: no candidate lowered both errors enough; the model is kept")
+            lines.append("Refinement: no candidate passed the acceptance rule; the model is kept")
         return "\n".join(lines)
 
 
 def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, candidates: Sequence[str] | None = None,
-                 min_improvement: float = 0.2, max_steps: int = 5, velocity: str = "savgol",
-                 window: float | str | None = "auto",
+                 max_steps: int = 5, velocity: str = "savgol", window: float | str | None = "auto",
                  builders: tuple[SystemBuilder, SystemBuilder] | None = None) -> JointRefinement:
-    """Add the best-ranked effect and re-identify (delay profiled again) while the effect's
-    ratio, the test equation error and the test simulation error all fall by
-    ``min_improvement``.  ``builders`` of the train and test data may be passed to reuse
-    their columns."""
+    """Add the best-ranked effect and re-identify (delay profiled again) while it passes
+    the acceptance rule (:mod:`cvxid.diagnosis.acceptance`).  ``builders`` of the train and
+    test data may be passed to reuse their columns."""
     out = JointRefinement(result)
     train_rows, test_rows = builders or _builders(result.specs, train, test, velocity, window)
     equation_error = equation_mse(result, test_rows)
@@ -168,20 +169,36 @@ def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, 
             break
         best = ranking.index[0]
         term = ranking.loc[best, "term"]
+        if not ranking["ratio"].iloc[0] < 1:  # (NaN: no evidence either)
+            break
         specs = _with(out.result.specs, [resolve_term(term, tuple(out.result.specs))])
         trial = identify_system(SystemSpec(specs, out.result.ties), train_rows)
         new_equation = equation_mse(trial, test_rows)
         new_sim = simulation_error(trial, test)
-        keep = 1 - min_improvement
-        accepted = (ranking["ratio"].iloc[0] <= keep  # the effect itself, at the current delay
-                    and new_equation <= keep * equation_error and new_sim <= keep * sim_error)
-        if not accepted:
+        falls = new_equation < equation_error and new_sim < sim_error
+        probability = _inclusion(out.result, trial, term, train_rows, test_rows) if falls else float("nan")
+        if not accepted(probability):
             break
         out.steps.append({"added": best, "term": term, "test_mse_before": equation_error, "test_mse_after": new_equation,
-                          "simulation_error_before": sim_error, "simulation_error_after": new_sim,
+                          "inclusion": probability, "simulation_error_before": sim_error,
+                          "simulation_error_after": new_sim,
                           "tau": trial.tau})
         out.result, equation_error, sim_error = trial, new_equation, new_sim
     return out
+
+
+def _inclusion(before: IdentifiedSystem, trial: IdentifiedSystem, term: str, train_rows: SystemBuilder,
+               test_rows: SystemBuilder) -> float:
+    """The inclusion probability of ``term`` in the model it joins, ``trial`` (at its
+    delay), in every equation of ``before`` that lacked it, beside every other column
+    (:func:`~cvxid.diagnosis.acceptance.inclusion`; each half the same stretches of time of
+    every equation)."""
+    kept = [f"{label}:{n}" for label, s in before.specs.items() for n in s.column_names]
+    added = [f"{label}:{term}" for label, s in before.specs.items() if term not in s.column_names]
+    nonnegative = [f"{label}:{n}" for label, s in trial.specs.items() for n in s.nonnegative]
+    fitted = {label: train_rows.builders[label].at(trial.tau, spec) for label, spec in trial.specs.items()}
+    return inclusion(Regression.block(fitted), test_rows.at(trial.tau, trial.specs), kept, added, nonnegative,
+                     trial.ties, parts=[r.shape[0] for r in fitted.values()])
 
 
 def _builders(specs, train, test, velocity, window) -> tuple[SystemBuilder, SystemBuilder]:

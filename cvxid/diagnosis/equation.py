@@ -29,6 +29,7 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.acceptance import accepted, inclusion
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
@@ -504,6 +505,8 @@ class RefineStep:
     added: str
     term: str
     group: list[str]
+    inclusion: float
+    """Its inclusion probability over halves of the training rows (the acceptance rule)."""
     test_mse_before: float
     test_mse_after: float
     fit_before: float | None
@@ -568,7 +571,7 @@ class Refinement:
 
     def __repr__(self) -> str:
         if not self.steps:
-            return "Refinement: nothing added (no candidate lowered the validation error enough)"
+            return "Refinement: nothing added (no candidate passed the acceptance rule)"
         return "Refinement\n" + self.table().to_string(float_format=lambda v: f"{v:.4g}")
 
 
@@ -598,22 +601,23 @@ def refine(
     train: Experiment,
     test: Experiment,
     candidates: Sequence[str] | None = None,
-    min_improvement: float = 0.2,
     max_steps: int = 5,
     velocity: str = "savgol",
     window: float | str | None = "auto",
     builders: tuple[RegressionBuilder, RegressionBuilder] | None = None,
     selection: Selection | None = None,
 ) -> Refinement:
-    """Repeat diagnose → add the best effect → refit while the test equation error falls
-    by more than ``min_improvement`` (0.2: by 20 %).  ``builders`` of the train and test
-    data may be passed to reuse their columns.
+    """Repeat diagnose → add the best effect → refit while the best effect passes the
+    acceptance rule of :mod:`cvxid.diagnosis.acceptance` (it lowers the test equation
+    error, halves of the training rows keep choosing it, and the refitted model's test
+    equation error and free run fall).  ``builders`` of the train and test data may be
+    passed to reuse their columns.
 
     The refit keeps the model's terms and adds the effect's; with a ``selection`` and a
     library to select from, the library is selected anew beside the effect (kept, as a
     listed term): a term the first selection dropped may return, and one that only stood in
     for the missing effect may leave.  When the best candidate has collinear rivals (its
-    group in :attr:`Diagnosis.groups`) that lower the test equation error enough too, each is
+    group in :attr:`Diagnosis.groups`) that lower the test equation error too, each is
     refitted and the test record's free run chooses (:meth:`Diagnosis.decided`): the
     equation error cannot tell a quadratic from a cubic damping, a simulation can."""
     train_rows, test_rows = builders or (None, None)
@@ -629,17 +633,16 @@ def refine(
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
         diagnoses.append(dx)
         best = dx.top
-        if not dx.ranking.loc[best, "validation_ratio"] >= 1 + min_improvement:  # (NaN: no evidence either)
+        if not dx.ranking.loc[best, "validation_ratio"] > 1:  # (NaN: no evidence either)
             break
         # (the model's test error and free run: those of the last accepted step, else computed once)
         before = steps[-1].test_mse_after if steps else _test_mse(model, test_rows)
         old_cmp = comparisons[-1] if comparisons else compare(model, test, initial="record")
         group = next(g for g in dx.groups if best in g)
         # the equation error cannot tell a collinear group's members apart: of those that
-        # lower it enough, the free run of the test record chooses
+        # lower it, the free run of the test record chooses
         rivals = [best] if best in ("delay", "input_delay") else [
-            g for g in group if g not in ("delay", "input_delay")
-            and dx.ranking.loc[g, "validation_ratio"] >= 1 + min_improvement]
+            g for g in group if g not in ("delay", "input_delay") and dx.ranking.loc[g, "validation_ratio"] > 1]
         tried = {g: _with_candidate(model, g, dx, train, velocity, window, train_rows, test_rows, selection)
                  for g in rivals}
         compared = {g: compare(m, test, initial="record") for g, m in tried.items()}
@@ -648,15 +651,32 @@ def refine(
         best = dx.top
         new, new_cmp = tried[best], compared[best]
         after = _test_mse(new, test_rows)
-        # accept only when a simulation agrees: the free-run or the k-step-ahead error must
-        # fall too (equation errors alone accepted a spurious term in our hidden-effect trials)
-        if _improvement(old_cmp, new_cmp) < 1 + min_improvement:
+        falls = after < before and _improvement(old_cmp, new_cmp) > 1  # (cheap: checked first)
+        probability = _inclusion(model, new, best, dx, train_rows, test_rows) if falls else float("nan")
+        if not accepted(probability):
             break
-        steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, before, after,
+        steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
                                 old_cmp.fit_percent, new_cmp.fit_percent))
         comparisons += [new_cmp] if comparisons else [old_cmp, new_cmp]
         model = new
     return Refinement(model, steps, diagnoses, comparisons, start)
+
+
+def _inclusion(before: IdentifiedModel, after: IdentifiedModel, name: str, dx: Diagnosis,
+               train_rows: RegressionBuilder, test_rows: RegressionBuilder) -> float:
+    """The candidate's inclusion probability (:func:`~cvxid.diagnosis.acceptance.inclusion`)
+    in the model it joins: beside ``after``'s other terms and every unpenalised column, at
+    ``after``'s delay.  A change of delay is tested where it would leave: its column beside
+    ``before``'s terms, at ``before``'s delay."""
+    term = str(dx.ranking.loc[name, "term"])
+    if name in ("delay", "input_delay"):
+        model = before
+        spec = replace(before.spec, library=before.spec.library + list(_candidate_terms(before.spec, [name]).values()))
+    else:
+        model, spec = after, after.spec
+    kept = [c.name for c in spec.columns if c.name != term
+            and (c.penalty == 0 or model.coefficients.get(c.name, 0.0) != 0.0)]
+    return inclusion(train_rows.at(model.tau, spec), test_rows.at(model.tau, spec), kept, [term], spec.nonnegative)
 
 
 def _with_candidate(model: IdentifiedModel, name: str, dx: Diagnosis, train: Experiment, velocity: str,

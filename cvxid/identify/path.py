@@ -74,7 +74,7 @@ def _cross_validated(problem: Problem, lambdas, folds: int, estimator: str, debi
     return Path(problem, fits, errors.mean(axis=0), errors.std(axis=0, ddof=1) / np.sqrt(folds))
 
 
-def _score(residual: np.ndarray) -> tuple[float, float]:
+def validation_score(residual: np.ndarray) -> tuple[float, float]:
     """Mean squared residual and its block standard error."""
     sq = np.asarray(residual, dtype=float) ** 2
     blocks = np.array([b.mean() for b in np.array_split(sq, BLOCKS)])
@@ -111,7 +111,7 @@ class Path:
                 raise CvxidError("give either a validation function or folds, not both")
             return _cross_validated(problem, lambdas, int(folds), estimator, debias)
         fits = _sweep(problem, lambdas, estimator, debias)
-        scores = [_score(validate(f.coefficients)) if validate else (np.nan, np.nan) for f in fits]
+        scores = [validation_score(validate(f.coefficients)) if validate else (np.nan, np.nan) for f in fits]
         return cls(problem, fits, np.array([s[0] for s in scores]), np.array([s[1] for s in scores]))
 
     @property

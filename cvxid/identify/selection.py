@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import warnings
 from dataclasses import dataclass, field, replace
-from typing import Callable
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import pandas as pd
@@ -72,6 +72,27 @@ class StabilitySettings:
 
     def as_dict(self) -> dict:
         return {"samples": self.samples, "blocks": self.blocks, "threshold": self.threshold, "seed": self.seed}
+
+    def halves(self, n: int, parts: Sequence[int] | None = None) -> Iterator[np.ndarray]:
+        """``samples`` row masks of ``n`` rows, each keeping ``blocks / 2`` of the
+        ``blocks`` contiguous blocks, drawn without replacement (seeded).  Rows stacked from
+        several equations (``parts``: the row count of each, in order) keep the same blocks
+        of each, so a half is the same stretch of time for every equation."""
+        parts = [n] if parts is None else list(parts)
+        if sum(parts) != n:
+            raise CvxidError(f"the parts' rows ({'+'.join(map(str, parts))}) must add up to the {n} rows")
+        if min(parts) < 2 * self.blocks:
+            raise CvxidError(f"[fit] stability: {min(parts)} regression rows cannot be cut into {self.blocks} blocks "
+                             "of two rows or more; lower blocks or give a longer record")
+        starts = np.cumsum([0] + parts[:-1])
+        edges = [start + np.linspace(0, m, self.blocks + 1).astype(int) for start, m in zip(starts, parts)]
+        rng = np.random.default_rng(self.seed)
+        for _ in range(self.samples):
+            rows = np.zeros(n, bool)
+            for block in rng.choice(self.blocks, self.blocks // 2, replace=False):
+                for edge in edges:
+                    rows[edge[block]:edge[block + 1]] = True
+            yield rows
 
 
 @dataclass
@@ -147,16 +168,8 @@ class Selection:
         if regression is None:
             raise CvxidError("stability selection needs the rows: build the problem with Problem.from_regression")
         n = regression.shape[0]
-        if n < 2 * settings.blocks:
-            raise CvxidError(f"[fit] stability: {n} regression rows cannot be cut into {settings.blocks} blocks of "
-                             "two rows or more; lower blocks or give a longer record")
-        edges = np.linspace(0, n, settings.blocks + 1).astype(int)
-        rng = np.random.default_rng(settings.seed)
         kept, halves = np.zeros(problem.k), 0
-        for _ in range(settings.samples):
-            rows = np.zeros(n, bool)
-            for block in rng.choice(settings.blocks, settings.blocks // 2, replace=False):
-                rows[edges[block]:edges[block + 1]] = True
+        for rows in settings.halves(n):
             with warnings.catch_warnings():  # a half's warnings (its grid's edge) are the whole record's, said once
                 warnings.simplefilter("ignore", CvxidWarning)
                 try:

@@ -38,6 +38,7 @@ from cvxid.spec.problem import (
     _strings,
     _table,
     data_sections,
+    retired_min_improvement,
     ties_of,
 )
 
@@ -84,8 +85,8 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
                 raise CvxidError(f"spec: [diagnose] candidates: '{c}' is estimated again in one-equation models only; "
                                  "a coupled system's shared delay is profiled already")
             resolve_term(c, tuple(equations), effects)  # unknown names fail here, with the catalogue
+        retired_min_improvement(d)
         diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
-                                    _number(d, "min_improvement", "diagnose", 0.2, positive=True),
                                     _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
     return ProblemSpec(_string(raw, "name", "", default_name), folder, SystemSpec(equations, ties), fit, data, truth,
                        str(raw.get("description", "")), None, diagnose)

@@ -7,6 +7,7 @@ strings are names; nothing in a spec is ever executed.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Mapping
@@ -16,7 +17,7 @@ import numpy as np
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import Experiment, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.bootstrap import BootstrapSettings
 from cvxid.identify.selection import StabilitySettings
 from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
@@ -325,7 +326,6 @@ def data_sections(raw: Table) -> dict[str, dict]:
 class DiagnoseSettings:
     candidates: tuple[str, ...] | None = None  # None: the catalogue minus the model
     refine: bool = False
-    min_improvement: float = 0.2
     max_steps: int = 5
     simulation: bool = True  # after the output-error polish, the diagnosis by simulation error
 
@@ -352,8 +352,19 @@ def declared_effects(raw: Table, model: ModelSpec) -> dict[str, Effect]:
     return effects
 
 
+def retired_min_improvement(d: Table) -> None:
+    """Specs written before the acceptance rule may still set ``[diagnose]
+    min_improvement``: they load, and a warning says the key no longer does anything."""
+    if "min_improvement" in d:
+        warnings.warn("spec: [diagnose] min_improvement is no longer used (an effect is added by one stated rule "
+                      "for every spec: it must lower the test equation error, be kept on 70 % of halves of the "
+                      "training record, and lower the test simulation error; see cvxid.diagnosis.acceptance); "
+                      "remove the key", CvxidWarning, stacklevel=3)
+
+
 def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
     d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects", "simulation"})
+    retired_min_improvement(d)
     candidates = None
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
@@ -362,8 +373,6 @@ def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
     return DiagnoseSettings(
         candidates=candidates,
         refine=_bool(d, "refine", "diagnose", False),
-        min_improvement=_number(d, "min_improvement", "diagnose", 0.2, positive=True, within=(None, 10),
-                                fix="0.2 accepts an effect that lowers the error by 20 %"),
         max_steps=_number(d, "max_steps", "diagnose", 5, integer=True, within=(1, 20),
                           fix="each step adds one effect"),
         simulation=_bool(d, "simulation", "diagnose", True),
