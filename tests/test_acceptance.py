@@ -1,5 +1,6 @@
 """The one acceptance rule of the diagnosis (cvxid.diagnosis.acceptance)."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -84,3 +85,6 @@ def test_a_spurious_second_effect_is_refused(tmp_path):
     assert row["status"] == "ok", row["error"]
     assert row["added"] == row["first added"] == "coulomb"
     assert row["free-run error fall"] > 3  # measured 6.1x
+    (folder,) = tmp_path.iterdir()
+    (step,) = json.loads((folder / "result.json").read_text())["refinement"]
+    assert step["added"] == "coulomb" and step["inclusion"] >= ACCEPTANCE.threshold  # measured 1.0
