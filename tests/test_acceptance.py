@@ -88,3 +88,24 @@ def test_a_spurious_second_effect_is_refused(tmp_path):
     (folder,) = tmp_path.iterdir()
     (step,) = json.loads((folder / "result.json").read_text())["refinement"]
     assert step["added"] == "coulomb" and step["inclusion"] >= ACCEPTANCE.threshold  # measured 1.0
+
+
+def test_the_loop_says_where_it_stopped_and_why():
+    from cvxid.diagnosis.equation import refine, refit
+
+    from .test_diagnostics import experiments, linear_model
+
+    train, test = experiments(None)  # nothing hidden: the linear model is the truth
+    start = refit(linear_model(), train, ["x''", "x", "x'"], None)
+    result = refine(start, train, test)
+    assert result.steps == []
+    stopped = result.stopped
+    assert stopped["effect"] == result.diagnoses[0].top
+    # whichever condition failed is named, and the ones after it were not evaluated
+    if not stopped["validation_ratio"] > 1:
+        assert stopped["errors_fall"] is None and "does not lower the test equation error" in repr(result)
+    elif not stopped["errors_fall"]:
+        assert stopped["inclusion"] is None and "do not both fall" in repr(result)
+    else:
+        assert stopped["inclusion"] < ACCEPTANCE.threshold and "70 % needed" in repr(result)
+    assert repr(result).startswith("Refinement: nothing added\nstopped at " + stopped["effect"])

@@ -205,7 +205,7 @@ def test_one_run_transforms_each_record_once(monkeypatch):
     result = run(spec)
     assert [s.added for s in result.refinement.steps] == ["coulomb"]
     assert counts["builders"] == 2 and counts["profiles"] == 1 + counts["tried"]
-    assert counts["tried"] <= 3  # measured: the friction, then the two collinear dampings
+    assert counts["tried"] <= 3  # measured: the friction, then an offset and a quadratic stiffness (collinear)
     assert counts["problems"] <= 5 + 2 * counts["tried"], counts  # measured 11 (7 when one effect was tried)
 
 

@@ -169,6 +169,7 @@ class RunResult:
                 "groups": self.diagnosis.groups,
             },
             "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
+            "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
             "simulation_diagnosis": None if self.simulation_refinement is None else {
                 "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
                 if self.simulation_refinement.rankings else [],

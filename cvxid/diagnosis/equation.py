@@ -528,6 +528,11 @@ class Refinement:
     (empty when nothing was added)."""
     start: IdentifiedModel | None = None
     """The model the loop started from."""
+    stopped: dict | None = None
+    """Why the loop stopped at its last diagnosis's best candidate, when it did (not for
+    lack of candidates or steps): ``effect``, ``validation_ratio``, whether the refitted
+    model's test ``errors_fall`` (equation and simulation), and its ``inclusion``
+    (null when an earlier condition failed first)."""
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([s.as_dict() for s in self.steps]).set_index("added") if self.steps else pd.DataFrame()
@@ -570,9 +575,15 @@ class Refinement:
                                                                   f"error on '{experiment.name}'")
 
     def __repr__(self) -> str:
-        if not self.steps:
-            return "Refinement: nothing added (no candidate passed the acceptance rule)"
-        return "Refinement\n" + self.table().to_string(float_format=lambda v: f"{v:.4g}")
+        head = "Refinement" if self.steps else "Refinement: nothing added"
+        lines = [head] + ([self.table().to_string(float_format=lambda v: f"{v:.4g}")] if self.steps else [])
+        if self.stopped is not None:
+            s = self.stopped
+            reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
+                      "the refitted model's test errors do not both fall" if not s["errors_fall"] else
+                      f"halves of the training record keep it on {s['inclusion']:.0%} of them (70 % needed)")
+            lines.append(f"stopped at {s['effect']} (validation ratio {s['validation_ratio']:.4g}): {reason}")
+        return "\n".join(lines)
 
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
@@ -623,7 +634,7 @@ def refine(
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(model.spec, train, velocity, window, train_rows)
     test_rows = _builder(model.spec, test, velocity, train_rows.window, test_rows)
-    steps, diagnoses, comparisons, start = [], [], [], model
+    steps, diagnoses, comparisons, start, stopped = [], [], [], model, None
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
         pool = candidates if candidates is not None else default_candidates(model.spec)
@@ -633,6 +644,8 @@ def refine(
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
         diagnoses.append(dx)
         best = dx.top
+        stopped = {"effect": best, "validation_ratio": float(dx.ranking.loc[best, "validation_ratio"]),
+                   "errors_fall": None, "inclusion": None}
         if not dx.ranking.loc[best, "validation_ratio"] > 1:  # (NaN: no evidence either)
             break
         # (the model's test error and free run: those of the last accepted step, else computed once)
@@ -653,13 +666,16 @@ def refine(
         after = _test_mse(new, test_rows)
         falls = after < before and _improvement(old_cmp, new_cmp) > 1  # (cheap: checked first)
         probability = _inclusion(model, new, best, dx, train_rows, test_rows) if falls else float("nan")
+        stopped = {"effect": best, "validation_ratio": float(dx.ranking.loc[best, "validation_ratio"]),
+                   "errors_fall": bool(falls), "inclusion": None if np.isnan(probability) else probability}
         if not accepted(probability):
             break
+        stopped = None
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
                                 old_cmp.fit_percent, new_cmp.fit_percent))
         comparisons += [new_cmp] if comparisons else [old_cmp, new_cmp]
         model = new
-    return Refinement(model, steps, diagnoses, comparisons, start)
+    return Refinement(model, steps, diagnoses, comparisons, start, stopped)
 
 
 def _inclusion(before: IdentifiedModel, after: IdentifiedModel, name: str, dx: Diagnosis,
