@@ -30,13 +30,13 @@ many halves of the data it did:
    the stability selection of :mod:`cvxid.identify.selection`);
 3. **the refitted model is better, and a simulation agrees**: the model refitted with it
    (a delay profiled again, a library selected again) has a lower test equation error, and
-   its free run (or k-step-ahead prediction) of the test record a lower error than the
-   model's before.
+   its free run (or k-step-ahead prediction; a coupled system: its free run) of the test
+   record a lower error than the model's before.
 
 No share is set per spec: the rule is the same for every spec, and its constants (20
-halves, 10 blocks, 0.7) are the stability selection's defaults, not tuned for it.  Two tests of the
-test record's equation errors were measured and rejected: a paired t-test over 10 blocks,
-and a Diebold–Mariano test (Newey–West variance, lag one window).  Windowed rows overlap by
+halves, 10 blocks, 0.7) are the stability selection's defaults, not tuned for it.  Two
+tests of the test record's equation errors were measured and rejected: a paired t-test
+over 10 blocks, and a Diebold–Mariano test (Newey–West variance, lag one window).  Windowed rows overlap by
 a whole window, so an 8 s test record holds only about six independent stretches: the
 Diebold–Mariano statistic of an offset that lowered the test equation error 1.3·10⁷-fold
 was 1.6 (tuning seed 0), below any usual critical value.
