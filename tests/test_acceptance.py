@@ -109,3 +109,15 @@ def test_the_loop_says_where_it_stopped_and_why():
     else:
         assert stopped["inclusion"] < ACCEPTANCE.threshold and "70 % needed" in repr(result)
     assert repr(result).startswith("Refinement: nothing added\nstopped at " + stopped["effect"])
+
+
+def test_each_refusal_is_said_in_words():
+    from cvxid.diagnosis.acceptance import stop_reason, stopped_at
+
+    assert stop_reason(stopped_at("offset", 0.98)).endswith("it does not lower the test equation error")
+    assert stop_reason(stopped_at("offset", float("nan"))).endswith("does not lower the test equation error")
+    assert stop_reason(stopped_at("x^2", 1.3, False)).endswith("the refitted model's test errors do not both fall")
+    line = stop_reason(stopped_at("coulomb", 2.0, True, 0.45))
+    assert line == ("stopped at coulomb (validation ratio 2): halves of the training record keep it on 45 % of "
+                    "them (70 % needed)")
+    assert stopped_at("x^2", 1.3, False, float("nan"))["inclusion"] is None

@@ -34,6 +34,7 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     steps = result["refinement"]
     assert [s["added"] for s in steps] == ["coulomb(theta)"]
     assert steps[0]["inclusion"] >= 0.7  # the acceptance rule's share of halves (measured 1.0)
+    assert result["refinement_stopped"]["effect"] != "coulomb(theta)"  # where it stopped, and why
     assert steps[0]["test_mse_after"] < 0.1 * steps[0]["test_mse_before"]
     assert steps[0]["simulation_error_after"] < 0.2 * steps[0]["simulation_error_before"]
     assert physical["theta:sign(theta')"] == pytest.approx(0.05, rel=0.05)

@@ -211,6 +211,7 @@ class RunResult:
                 "ranking": self.refinement.rankings[0].reset_index().to_dict(orient="records"),
             },
             "refinement": None if self.refinement is None else self.refinement.steps,
+            "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
             "loss": self.spec.fit.loss,
         }
 

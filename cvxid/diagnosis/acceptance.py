@@ -108,3 +108,25 @@ def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added
 def accepted(probability: float) -> bool:
     """Whether an inclusion probability passes the rule's threshold."""
     return probability >= ACCEPTANCE.threshold - 1e-12
+
+
+def stopped_at(effect: str, validation_ratio: float, errors_fall: bool | None = None,
+               inclusion: float | None = None) -> dict:
+    """Where a diagnosis loop stopped: the refused ``effect``, its ``validation_ratio`` (the
+    test equation error before over after, above 1 when it helps), whether the refitted
+    model's test errors fell and its inclusion (None where an earlier condition failed
+    first); JSON-ready."""
+    inclusion = None if inclusion is None or np.isnan(inclusion) else float(inclusion)
+    return {"effect": effect, "validation_ratio": float(validation_ratio),
+            "errors_fall": None if errors_fall is None else bool(errors_fall), "inclusion": inclusion}
+
+
+def stop_reason(stopped: dict) -> str:
+    """The condition of the rule the refused candidate failed, in one line."""
+    s = stopped
+    reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
+              "the refitted model's test errors do not both fall" if not s["errors_fall"] else
+              f"halves of the training record keep it on {100 * s['inclusion']:.0f} % of them "
+              f"({100 * ACCEPTANCE.threshold:.0f} % needed)")
+    return f"stopped at {s['effect']} (validation ratio {s['validation_ratio']:.4g}): {reason}"
+

@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.acceptance import accepted, inclusion
+from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.problem import Problem
@@ -120,6 +120,9 @@ class JointRefinement:
     result: IdentifiedSystem
     steps: list[dict] = field(default_factory=list)
     rankings: list[pd.DataFrame] = field(default_factory=list)
+    stopped: dict | None = None
+    """Why the loop stopped at its last ranking's best candidate, when it did
+    (:func:`~cvxid.diagnosis.acceptance.stopped_at`)."""
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame(self.steps)
@@ -146,6 +149,8 @@ class JointRefinement:
             lines += ["  " + line for line in self.table().to_string(index=False).splitlines()]
         else:
             lines.append("Refinement: no candidate passed the acceptance rule; the model is kept")
+        if self.stopped is not None:
+            lines.append(stop_reason(self.stopped))
         return "\n".join(lines)
 
 
@@ -169,6 +174,7 @@ def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, 
             break
         best = ranking.index[0]
         term = ranking.loc[best, "term"]
+        out.stopped = stopped_at(best, 1 / ranking["ratio"].iloc[0])
         if not ranking["ratio"].iloc[0] < 1:  # (NaN: no evidence either)
             break
         specs = _with(out.result.specs, [resolve_term(term, tuple(out.result.specs))])
@@ -177,8 +183,10 @@ def refine_joint(result: IdentifiedSystem, train: Experiment, test: Experiment, 
         new_sim = simulation_error(trial, test)
         falls = new_equation < equation_error and new_sim < sim_error
         probability = _inclusion(out.result, trial, term, train_rows, test_rows) if falls else float("nan")
+        out.stopped = stopped_at(best, 1 / ranking["ratio"].iloc[0], falls, probability)
         if not accepted(probability):
             break
+        out.stopped = None
         out.steps.append({"added": best, "term": term, "test_mse_before": equation_error, "test_mse_after": new_equation,
                           "inclusion": probability, "simulation_error_before": sim_error,
                           "simulation_error_after": new_sim,

@@ -29,7 +29,7 @@ from scipy.interpolate import CubicSpline
 from scipy.signal import savgol_filter
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.acceptance import accepted, inclusion
+from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.initial_state import check_initial_state, free_run
@@ -578,11 +578,7 @@ class Refinement:
         head = "Refinement" if self.steps else "Refinement: nothing added"
         lines = [head] + ([self.table().to_string(float_format=lambda v: f"{v:.4g}")] if self.steps else [])
         if self.stopped is not None:
-            s = self.stopped
-            reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
-                      "the refitted model's test errors do not both fall" if not s["errors_fall"] else
-                      f"halves of the training record keep it on {s['inclusion']:.0%} of them (70 % needed)")
-            lines.append(f"stopped at {s['effect']} (validation ratio {s['validation_ratio']:.4g}): {reason}")
+            lines.append(stop_reason(self.stopped))
         return "\n".join(lines)
 
 
@@ -644,8 +640,7 @@ def refine(
         dx = diagnose(model, train, test, pool, velocity, window, (train_rows, test_rows))
         diagnoses.append(dx)
         best = dx.top
-        stopped = {"effect": best, "validation_ratio": float(dx.ranking.loc[best, "validation_ratio"]),
-                   "errors_fall": None, "inclusion": None}
+        stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"])
         if not dx.ranking.loc[best, "validation_ratio"] > 1:  # (NaN: no evidence either)
             break
         # (the model's test error and free run: those of the last accepted step, else computed once)
@@ -666,8 +661,7 @@ def refine(
         after = _test_mse(new, test_rows)
         falls = after < before and _improvement(old_cmp, new_cmp) > 1  # (cheap: checked first)
         probability = _inclusion(model, new, best, dx, train_rows, test_rows) if falls else float("nan")
-        stopped = {"effect": best, "validation_ratio": float(dx.ranking.loc[best, "validation_ratio"]),
-                   "errors_fall": bool(falls), "inclusion": None if np.isnan(probability) else probability}
+        stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
         if not accepted(probability):
             break
         stopped = None
