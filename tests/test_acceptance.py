@@ -61,7 +61,7 @@ def test_stacked_equations_are_halved_on_the_same_stretches_of_time():
         assert first.sum() == 50 and second.sum() == 100
         # the same blocks of each part: block b of part one is kept iff block b of part two is
         assert np.array_equal(first[::10], second[::20])
-    with pytest.raises(Exception, match="must add up"):
+    with pytest.raises(ValueError, match="must add up"):
         next(settings.halves(300, parts=[100, 100]))
 
 

@@ -229,9 +229,8 @@ def _identify(spec) -> RunResult:
         stability = fit.stability if one and not fit.bootstrap else None
         choice = Selection(fit.estimator, fit.lambdas, fit.selection, stability).choose(
             problem, validation.residual if validation else None, folds, fit.debias)
-        path, best, keep, stable = choice.path, choice.fit, choice.keep, choice.stability
+        path, best, keep, stable, chosen = choice.path, choice.fit, choice.keep, choice.stability, choice.reported
     taken = stable is not None and stable.accepted
-    chosen = problem.refit(keep) if taken else best
     coefs = dict(zip(problem.names, np.where(keep, chosen.coefficients, 0.0)))
     if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
         system = system.selected([n for n, k in zip(problem.names, keep) if k])

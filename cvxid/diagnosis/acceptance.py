@@ -45,7 +45,6 @@ was 1.6 (tuning seed 0), below any usual critical value.
 from __future__ import annotations
 
 import warnings
-from dataclasses import replace
 from typing import Sequence
 
 import numpy as np
@@ -82,18 +81,20 @@ def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added
         scaled = constrained_least_squares(reduced, names, mask, signs, ties)
         return validation_score(validate(reduced.to_physical(scaled)))
 
-    n, counts = regression.shape[0], [regression.shape[0]] if parts is None else list(parts)
-    if min(counts) < 2 * ACCEPTANCE.blocks:
-        warnings.warn(f"the diagnosis cannot test {', '.join(added)}: {min(counts)} regression rows are too few to "
+    try:
+        halves = list(ACCEPTANCE.halves(regression.shape[0], parts))
+    except CvxidError:
+        fewest = regression.shape[0] if parts is None else min(parts)
+        warnings.warn(f"the diagnosis cannot test {', '.join(added)}: {fewest} regression rows are too few to "
                       f"cut into {ACCEPTANCE.blocks} blocks; it is not added (give a longer record)", CvxidWarning,
                       stacklevel=3)
         return 0.0
     keeps = []
-    for rows in ACCEPTANCE.halves(n, parts):
+    for rows in halves:
         with warnings.catch_warnings():  # a candidate may repeat a model column: its ratio said so already
             warnings.simplefilter("ignore", CvxidWarning)
-            try:
-                reduced = replace(regression, P=regression.P[rows], p=regression.p[rows]).reduce()
+            try:  # (the half as 0/1 row weights, as the bootstrap's samples are)
+                reduced = regression.reduce(rows.astype(float))
             except CvxidError:  # a column zero on this half (a record whose forcing starts late)
                 continue
         with_it, se = error(reduced, both)

@@ -35,7 +35,7 @@ at noise 0.01 and 64 → 88 % at 0.001 with :math:`K = 20`, :math:`B = 10`,
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable, Iterator, Sequence
 
 import numpy as np
@@ -79,8 +79,8 @@ class StabilitySettings:
         several equations (``parts``: the row count of each, in order) keep the same blocks
         of each, so a half is the same stretch of time for every equation."""
         parts = [n] if parts is None else list(parts)
-        if sum(parts) != n:
-            raise CvxidError(f"the parts' rows ({'+'.join(map(str, parts))}) must add up to the {n} rows")
+        if sum(parts) != n:  # (a caller's mistake, not a user's)
+            raise ValueError(f"the parts' rows ({'+'.join(map(str, parts))}) must add up to the {n} rows")
         if min(parts) < 2 * self.blocks:
             raise CvxidError(f"[fit] stability: {min(parts)} regression rows cannot be cut into {self.blocks} blocks "
                              "of two rows or more; lower blocks or give a longer record")
@@ -130,11 +130,14 @@ class Stability:
 @dataclass
 class Choice:
     """What a :class:`Selection` chose: the whole record's path and fit, the columns kept
-    (unpenalised ones included) and, with stability selection, the inclusion probabilities."""
+    (unpenalised ones included), the fit reported (the path's, or the least squares of the
+    stable support when stability selection's was taken) and, with stability selection, the
+    inclusion probabilities."""
 
     path: Path
     fit: Fit
     keep: np.ndarray
+    reported: Fit
     stability: Stability | None = None
 
 
@@ -156,12 +159,15 @@ class Selection:
         path, fit = select(problem, self.lambdas, validate, self.estimator, debias, folds, self.rule)
         free = problem.penalties == 0
         if self.stability is None or free.all() or validate is None:  # (no test record: nothing to check it by)
-            return Choice(path, fit, fit.support | free)
+            return Choice(path, fit, fit.support | free, fit)
         stability = self._stability(problem, validate, debias)
         keep = stability.support | free
         # the stable support, refitted by least squares, must be one the lambda rule accepts
-        stability.accepted = float(np.mean(validate(problem.refit(keep).coefficients) ** 2)) <= path.bound(self.rule)
-        return Choice(path, fit, keep if stability.accepted else fit.support | free, stability)
+        stable = problem.refit(keep)
+        stability.accepted = float(np.mean(validate(stable.coefficients) ** 2)) <= path.bound(self.rule)
+        if stability.accepted:
+            return Choice(path, fit, keep, stable, stability)
+        return Choice(path, fit, fit.support | free, fit, stability)
 
     def _stability(self, problem: Problem, validate, debias: bool) -> Stability:
         settings, regression = self.stability, problem.regression
@@ -172,9 +178,9 @@ class Selection:
         for rows in settings.halves(n):
             with warnings.catch_warnings():  # a half's warnings (its grid's edge) are the whole record's, said once
                 warnings.simplefilter("ignore", CvxidWarning)
-                try:
-                    half = Problem.from_regression(replace(regression, P=regression.P[rows], p=regression.p[rows]),
-                                                   problem.nonnegative, problem.solver, ties=problem.ties)
+                try:  # (the half as 0/1 row weights, as the bootstrap's samples are)
+                    half = Problem.from_regression(regression, problem.nonnegative, problem.solver,
+                                                   row_weights=rows.astype(float), ties=problem.ties)
                 except CvxidError:  # a column zero on this half (a record whose forcing starts late): skip it
                     continue
                 _, fit = select(half, self.lambdas, validate, self.estimator, debias, None, self.rule)
