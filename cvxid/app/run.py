@@ -222,7 +222,7 @@ def _identify(spec) -> RunResult:
     stable = None
     if fit.estimator == "lstsq":  # every fit is one: least squares on every column
         path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, "lstsq")
-        best = path.fits[-1]
+        best = chosen = path.fits[-1]
         keep = best.support | (problem.penalties == 0)
     else:  # stability selection for one equation (a coupled system's rows are its equations' stacked)
         # (the bootstrap selects on each of its samples and its mean is the estimate)
