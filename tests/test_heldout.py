@@ -8,6 +8,9 @@ import pytest
 
 import cvxid.tools.heldout as heldout_module
 from cvxid.app.cli import main
+from cvxid.app.run import run
+from cvxid.data.experiment import Experiment
+from cvxid.identify.output_error import delay_standard_error, output_error
 from cvxid.spec.load import load_problem
 from cvxid.tools.heldout import (
     BASE_TERMS,
@@ -96,6 +99,8 @@ def test_the_written_spec_loads_with_the_true_terms(tmp_path):
 
 def test_a_failing_system_is_a_row_with_its_error(monkeypatch):
     class Result:
+        polish = None  # no output-error fit: no delay limit
+
         def to_dict(self):
             return {"physical": {"m": 1.0, "x": 10.0, "x'": 0.5, "gain": 3.0, "tau": 0.1},
                     "tau": {"estimate": 0.1, "interval": [0.09, 0.11], "method": "output_error"}, "seconds": 0.5}
@@ -144,6 +149,9 @@ def test_short_quiet_records_give_tau():
     frame = heldout([1, 4], ["none"], [0.001], duration=10.0, n_jobs=2)
     assert (frame["status"] == "ok").all(), frame["error"].tolist()
     assert frame["tau error %"].abs().max() < TAU_TOLERANCE, frame["tau error %"].tolist()
+    # each structure-mode row carries its delay limit: the error in units of it is the same ratio
+    assert (frame["tau limit %"] > 0).all(), frame["tau limit %"].tolist()
+    assert np.allclose(frame["tau error / limit"], frame["tau error %"] / frame["tau limit %"])
 
 
 def test_a_late_input_is_drawn_from_its_own_stream_and_written_into_the_spec(tmp_path):
@@ -214,3 +222,38 @@ def test_collinear_rivals_are_decided_by_the_free_run(tmp_path):
     assert fits["quadratic_damping"] > max(f for e, f in fits.items() if e != "quadratic_damping") + 1  # % points
     assert max(r["validation_ratio"] for r in ranking) == next(r for r in ranking
                                                                if r["effect"] == "cubic_damping")["validation_ratio"]
+
+
+def test_the_summary_counts_errors_within_the_delay_limit():
+    frame = pd.DataFrame({"seed": [0, 1, 2, 3], "effect": "none", "noise": 0.01, "status": "ok",
+                          "tau error %": [0.5, -3.0, 1.0, 8.0], "covers": True, "worst other %": 1.0, "seconds": 1.0,
+                          "tau limit %": [1.0, 1.0, 2.0, 4.0], "tau error / limit": [0.5, -3.0, 0.5, 2.0]})
+    table = summary(frame.reindex(columns=[*frame.columns, "tau_u error %", "tau_u covers"]))
+    assert table.loc[("none", 0.01), "tau limit % median"] == 1.5
+    assert table.loc[("none", 0.01), "within 1.96 limits %"] == 50
+    assert table.loc[("none", 0.01), "with a limit"] == 4
+
+
+MONTE_CARLO = 12
+"""Noise realisations of one tuning-range system (seed 1: 8 s, noise 0.01 on x and f, gain known)."""
+
+
+@pytest.mark.slow
+def test_the_delay_limit_predicts_the_spread_of_the_estimates(tmp_path):
+    """The standard error that delay_standard_error gives at the true delay is the spread of
+    the output-error delay over noise realisations (within the sampling error of 12: a
+    ratio in [0.6, 1.5]; measured 0.95)."""
+    oscillator = draw(1, "none", 0.01, 8.0)
+    model = run(write(oscillator, tmp_path, "structure", known_gain=True)).polish.system
+    t, x, _, f = oscillator.simulate("train")
+    taus, limits = [], []
+    for k in range(MONTE_CARLO):
+        rng = np.random.default_rng([1, k])
+        record = Experiment(t, {"x": x + 0.01 * rng.standard_normal(t.size)},
+                            {"f": f + 0.01 * rng.standard_normal(t.size)}, name="train")
+        taus.append(output_error(model, [record], step=record.dt, max_iterations=50).parameters["tau"])
+        limits.append(delay_standard_error(model, [record], oscillator.tau))
+    spread = np.std(taus, ddof=1)
+    assert 0.6 < spread / np.mean(limits) < 1.5, (spread, np.mean(limits))
+    assert abs(np.mean(taus) - oscillator.tau) < spread, (np.mean(taus), oscillator.tau)
+

@@ -79,6 +79,7 @@ from cvxid.app.run import run
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
+from cvxid.identify.output_error import delay_standard_error
 from cvxid.model.library import Library, resolve_term
 from cvxid.model.terms import parse_term
 from cvxid.progress import progress
@@ -365,7 +366,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 
 # ---------------------------------------------------------------------- runs
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
-TRAILING = ["worst other %", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
+TRAILING = ["worst other %", "tau limit %", "tau error / limit", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
              "free-run error fall"]
 SELECTION = ["support recovered", "missed", "spurious"]
@@ -404,6 +405,20 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
                                         .get("steps", []) if step["kept"]),
         **_falls(result, oscillator.effect),
     }
+
+
+def _delay_limit(out, oscillator: Oscillator) -> dict:
+    """Structure mode (the model has the true terms): the standard error of the delay that
+    the training record allows an output-error fit at the true delay
+    (:func:`~cvxid.identify.output_error.delay_standard_error`), in % of the delay, and the
+    delay's error in units of it (about standard normal for an efficient estimator)."""
+    if out.polish is None or "tau" not in out.polish.parameters:
+        return {}
+    try:
+        se = delay_standard_error(out.polish.system, out.train, oscillator.tau, out.polish.initial)
+    except (CvxidError, SimulationDiverged):  # the run itself stands; only its limit is unknown
+        return {"tau limit %": np.nan, "tau error / limit": np.nan}
+    return {"tau limit %": 100.0 * se / oscillator.tau, "tau error / limit": (out.polish.parameters["tau"] - oscillator.tau) / se}
 
 
 def _falls(result: dict, effect: str) -> dict:
@@ -459,10 +474,13 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
                         "true tau": oscillator.tau})
             name = f"{seed}_{oscillator.effect}_{oscillator.noise:g}_{oscillator.duration:.4g}s"
             folder = Path(keep) / name if keep else Path(scratch)
-            result = run(write(oscillator, folder, mode, known_gain, fit)).to_dict()
+            out = run(write(oscillator, folder, mode, known_gain, fit))
+            result = out.to_dict()
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
             row.update(_row(result, oscillator, known_gain))
+            if mode == "structure":
+                row.update(_delay_limit(out, oscillator))
             if mode.startswith("selection"):
                 row.update(_selected(result, oscillator))
         except Exception as exc:  # noqa: BLE001  (one system's failure is its row, not the benchmark's)
@@ -477,8 +495,9 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
 
     Columns: seed, effect, noise, duration, kind (of the training forcing), true tau, tau,
     tau error %, the tau interval (low, high, covers), ``err % <parameter>`` for every
-    physical parameter (``m``, term names, ``gain``), worst other %, seconds (of the run),
-    status, error; in diagnosis mode also the first ranked effect, the effects added (by
+    physical parameter (``m``, term names, ``gain``), worst other %, in structure mode the
+    delay limit (``tau limit %``, :func:`_delay_limit`) and ``tau error / limit``, seconds
+    (of the run), status, error; in diagnosis mode also the first ranked effect, the effects added (by
     either stage), the first added and the error falls at its step (:func:`_falls`); in
     selection mode whether the true support was recovered, the terms missed and the spurious
     ones.  ``fit``: ``[fit]`` settings for every spec (see :func:`spec_text`).
@@ -496,17 +515,23 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
 
 def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
     """Per group: systems, failures, median and 90th percentile of |tau error| %, median
-    worst other %, the share of tau intervals that cover the truth (%), for a late input
-    the median |tau_u error| % and its intervals' coverage, in selection mode the share of
-    systems whose true support was recovered (%), and median seconds."""
+    worst other %, the share of tau intervals that cover the truth (%), in structure mode the
+    median of the delay's limit (the standard error the data allow, % of the delay), the
+    systems that have one and the share of their errors within 1.96 of it (95 % for an efficient, unbiased estimator), for a late
+    input the median |tau_u error| % and its intervals' coverage, in selection mode the share
+    of systems whose true support was recovered (%), and median seconds."""
     frame = frame.assign(failed=frame["status"] != "ok", abs_tau=frame["tau error %"].abs(),
                          covered=frame["covers"].astype(float), abs_tau_u=frame["tau_u error %"].abs(),
                          covered_u=frame["tau_u covers"].astype(float),
-                         recovered=frame.get("support recovered", pd.Series(np.nan, frame.index)).astype(float))
+                         recovered=frame.get("support recovered", pd.Series(np.nan, frame.index)).astype(float),
+                         within=(frame["tau error / limit"].abs() <= 1.96).astype(float)
+                         .where(frame["tau error / limit"].notna()))
     ok = frame[~frame["failed"]].groupby(list(by), sort=False)
     late = {"|tau_u err| % median": ok["abs_tau_u"].median(), "tau_u covers %": 100 * ok["covered_u"].mean()} \
         if frame["abs_tau_u"].notna().any() else {}
     support = {"support recovered %": 100 * ok["recovered"].mean()} if "support recovered" in frame else {}
+    limit = {"tau limit % median": ok["tau limit %"].median(), "with a limit": ok["within"].count(),
+             "within 1.96 limits %": 100 * ok["within"].mean()} if frame["tau limit %"].notna().any() else {}
     return pd.DataFrame({
         "systems": frame.groupby(list(by), sort=False).size(),
         "failures": frame.groupby(list(by), sort=False)["failed"].sum(),
@@ -514,6 +539,7 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
         "|tau err| % p90": ok["abs_tau"].quantile(0.9),
         "worst other % median": ok["worst other %"].median(),
         "covers %": 100 * ok["covered"].mean(),
+        **limit,
         **late,
         **support,
         "seconds median": ok["seconds"].median(),
