@@ -24,7 +24,10 @@ seconds (a whole number of samples), which keeps RK4 accurate while the record i
 Standard errors come from the Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}\, n/n_{\rm eff}`,
 where :math:`n_{\rm eff}` counts the independent residuals (their autocorrelation, as in
 the delay profile): a model error or a smoothed measurement colours the residual, and
-white-noise standard errors would then be far too small.
+white-noise standard errors would then be far too small.  The polish's final fit adds the
+spread that the noise on the measured inputs gives (:func:`input_noise_covariance`, from
+synthetic noise records of each input's own noise level): the residual shows that noise
+only in part, and on long records of lightly damped systems it dominates.
 
 Parameters are physical (a Taylor delay's shares are written back into its columns).  For
 one equation they are named ``m``, the terms' physical names, ``tau``, ``gain``, ``x0`` and
@@ -51,6 +54,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
+from cvxid.metrics import noise_level
 from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
@@ -72,6 +76,10 @@ its iterates strictly inside, e.g. a delay of 1e-10 for 0)."""
 
 FINE = 7
 """Delays of the finer grid around the profile's best point (between its two neighbours)."""
+
+INPUT_NOISE_DRAWS = 8
+"""Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
+estimates the spread that the inputs' noise gives the parameters."""
 
 
 @dataclass(frozen=True)
@@ -161,13 +169,14 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     else:
         origin = system
     try:
-        best = output_error(origin, experiments, initial, step=coarse_step, max_iterations=max_iterations)
+        best = output_error(origin, experiments, initial, step=coarse_step, max_iterations=max_iterations,
+                            input_noise=not final)
     except CvxidError as exc:
         raise CvxidError(f"the output-error polish failed ({exc})") from exc
     before = output_rms(system, experiments)
     if final:
         best = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
-                            max_iterations=final_iterations)
+                            max_iterations=final_iterations, input_noise=True)
     profile = None
     if points:
         points[best.parameters["tau"]] = (best.rms_after, best)
@@ -262,11 +271,13 @@ def with_tau(fitted: IdentifiedModel | IdentifiedSystem, tau: float):
 
 
 def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float = 1e-3,
-                 max_iterations: int = 30, fixed_tau: float | None = None) -> PolishResult:
+                 max_iterations: int = 30, fixed_tau: float | None = None, input_noise: bool = False) -> PolishResult:
     """Polish ``fitted`` on ``experiments`` by output error from its own delay (see the
     module docstring; :func:`polish` profiles the delay first).  ``initial``: each
     experiment's starting states (coordinate → (position, velocity)), estimated from the
-    data by default; ``fixed_tau``: keep the delay at this value."""
+    data by default; ``fixed_tau``: keep the delay at this value; ``input_noise``: the
+    standard errors include the spread from the measured inputs' noise
+    (:func:`input_noise_covariance`)."""
     start = time.perf_counter()
     system = _system(fitted)
     problem = _Problem(system, _experiments(experiments, _shortest(system)), step, initial, fixed_tau)
@@ -307,7 +318,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     n_eff = effective_rows(r)
-    errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff))))
+    extra = input_noise_covariance(problem, theta, sol.jac) if input_noise else None
+    errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff, extra))))
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
     if fixed_tau is not None and problem.delay is not None:
         errors["tau"] = 0.0
@@ -316,17 +328,19 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
                         effective_rows=n_eff, states=frozenset(problem.state_names))
 
 
-def standard_errors(jacobian: np.ndarray, residual: np.ndarray, n_eff: float | None = None) -> np.ndarray:
+def standard_errors(jacobian: np.ndarray, residual: np.ndarray, n_eff: float | None = None,
+                    extra: np.ndarray | None = None) -> np.ndarray:
     r"""The parameters' standard errors from the simulation residual :math:`r` and its
     Jacobian :math:`J`,
 
-    .. math:: \operatorname{se} = \sqrt{\operatorname{diag}\big(\hat\sigma^2 (J^T J)^{-1}\big)\,
-       n / n_{\rm eff}}, \qquad \hat\sigma^2 = \frac{r^T r}{n - p},
+    .. math:: \operatorname{se} = \sqrt{\operatorname{diag}\big(\hat\sigma^2 (J^T J)^{-1}\,
+       n / n_{\rm eff} + \Sigma_u\big)}, \qquad \hat\sigma^2 = \frac{r^T r}{n - p},
 
     where :math:`n_{\rm eff}` counts the independent residuals (coloured residuals carry
-    fewer than they have; :func:`~cvxid.identify.profile.effective_rows` by default).  A
-    parameter that moves nothing (a delay below the simulator's resolution) and a singular
-    :math:`J^T J` give NaN."""
+    fewer than they have; :func:`~cvxid.identify.profile.effective_rows` by default) and
+    :math:`\Sigma_u` (``extra``, zero by default) is the covariance from the inputs' noise
+    (:func:`input_noise_covariance`).  A parameter that moves nothing (a delay below the
+    simulator's resolution) and a singular :math:`J^T J` give NaN."""
     r = np.asarray(residual, float)
     n_eff = effective_rows(r) if n_eff is None else n_eff
     se = np.full(jacobian.shape[1], np.nan)
@@ -335,6 +349,8 @@ def standard_errors(jacobian: np.ndarray, residual: np.ndarray, n_eff: float | N
     try:
         J = jacobian[:, seen]
         cov = np.linalg.inv(J.T @ J) * float(r @ r) / dof * r.size / n_eff
+        if extra is not None:
+            cov = cov + extra[np.ix_(seen, seen)]
         se[seen] = np.sqrt(np.clip(np.diag(cov), 0, None))
     except np.linalg.LinAlgError:
         pass
@@ -351,10 +367,50 @@ def delay_standard_error(fitted: IdentifiedModel | IdentifiedSystem, experiments
     and on the output alone): ``cvxid bench --heldout`` compares each error with it."""
     step = _experiments(experiments, _shortest(_system(fitted)))[0].dt
     fit = output_error(with_tau(fitted, tau), experiments, initial, step=step, max_iterations=100, fixed_tau=tau)
-    names, r, J = linearisation(fit.system, experiments, fit.initial)
-    if "tau" not in names:
+    problem = _problem_at(fit.system, experiments, fit.initial, None)
+    if "tau" not in problem.names:
         raise CvxidError("delay_standard_error: the model has no fed-back delay to estimate")
-    return float(standard_errors(J, r)[names.index("tau")])
+    r, J = _linearise(problem)
+    se = standard_errors(J, r, extra=input_noise_covariance(problem, problem.start, J))
+    return float(se[problem.names.index("tau")])
+
+
+def input_noise_covariance(problem: "_Problem", theta: np.ndarray, jacobian: np.ndarray,
+                           draws: int = INPUT_NOISE_DRAWS) -> np.ndarray | None:
+    r"""The covariance that the noise on the measured inputs gives the fitted parameters.
+
+    The simulation reads the measured input :math:`u + n`, so its residual carries the
+    model's response :math:`G_\theta n`, and to first order the fit moves by
+    :math:`\delta = (J^T J)^{-1} J^T G_\theta n`.  The residual at the optimum shows that
+    response only in part: the fit absorbs what lies along the columns of :math:`J`, and a
+    lightly damped system's response to force noise sits at its resonance, where those
+    columns are too.  So :math:`n` is drawn ``draws`` times as white noise of the level each
+    input carries (:func:`~cvxid.metrics.noise_level`), each draw simulated at ``theta``, and
+
+    .. math:: \Sigma_u = \frac{1}{K} \sum_k \delta_k \delta_k^T .
+
+    Seeded: the same record gives the same errors.  None when no input carries noise."""
+    rng = np.random.default_rng(0)
+    experiments = problem.experiments
+    levels = [{name: noise_level(e.input(name)) for name in e.inputs} for e in experiments]
+    if not any(level > 0 for each in levels for level in each.values()):
+        return None
+    here = problem.residuals(theta[None, :])[:, 0]
+    seen = np.any(jacobian != 0, axis=0)
+    try:
+        influence = np.zeros((theta.size, jacobian.shape[0]))
+        influence[seen] = np.linalg.solve(jacobian[:, seen].T @ jacobian[:, seen], jacobian[:, seen].T)
+    except np.linalg.LinAlgError:
+        return None
+    step = experiments[0].dt * problem.stride
+    moves = []
+    for _ in range(draws):
+        noisy = [replace(e, inputs={name: e.input(name) + level * rng.standard_normal(e.time.size)
+                                    for name, level in each.items()}) for e, each in zip(experiments, levels)]
+        again = _Problem(problem.base, noisy, step, problem.initial(theta), problem.fixed_tau)
+        moves.append(influence @ (again.residuals(theta[None, :])[:, 0] - here))
+    moves = np.array(moves)
+    return moves.T @ moves / draws
 
 
 def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
@@ -363,10 +419,15 @@ def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initi
     Jacobian, with the parameters' names (as :func:`output_error` names them): one batch
     of simulations.  ``step``: the simulation step (the sample step by default)."""
     problem = _problem_at(fitted, experiments, initial, step)
+    return (problem.names, *_linearise(problem))
+
+
+def _linearise(problem: "_Problem") -> tuple[np.ndarray, np.ndarray]:
+    """The residual at ``problem``'s start and its forward-difference Jacobian."""
     theta = problem.start
     h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
     r = problem.residuals(np.vstack([theta, theta + np.diag(h)]))
-    return problem.names, r[:, 0], (r[:, 1:] - r[:, :1]) / h
+    return r[:, 0], (r[:, 1:] - r[:, :1]) / h
 
 
 def residual(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
