@@ -282,3 +282,22 @@ def test_the_standard_error_counts_the_noise_on_the_force(tmp_path):
     spread = np.std(taus, ddof=1)
     assert 0.6 < spread / np.mean(with_input) < 1.5, (spread, np.mean(with_input))
     assert spread / np.mean(residual_only) > 2.0, (spread, np.mean(residual_only))
+
+
+def test_broadband_excitation_is_not_taken_for_input_noise(tmp_path):
+    """The input-noise spread counts white noise on a smooth input (here 0.01 on the
+    multisine force), never a white-noise excitation, whose samples noise_level cannot tell
+    from noise (it would inflate every error by the whole input)."""
+    from cvxid.identify.output_error import _linearise, _problem_at, input_noise_covariance
+    oscillator = draw(1, "none", 0.01, 5.0)
+    polished = run(write(oscillator, tmp_path, "structure", known_gain=True)).polish
+    record = oscillator.experiment("train")
+    problem = _problem_at(polished.system, [record], polished.initial, None)
+    residual, jacobian = _linearise(problem)
+    spread = input_noise_covariance(problem, problem.start, residual, jacobian)
+    assert spread is not None and spread[problem.names.index("tau"), problem.names.index("tau")] > 0
+    white = Experiment(record.time, {"x": record.output("x")},
+                       {"f": np.random.default_rng(3).standard_normal(record.time.size)}, name="white")
+    problem = _problem_at(polished.system, [white], polished.initial, None)
+    residual, jacobian = _linearise(problem)
+    assert input_noise_covariance(problem, problem.start, residual, jacobian) is None

@@ -80,6 +80,11 @@ FINE = 7
 INPUT_NOISE_DRAWS = 8
 """Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
 estimates the spread that the inputs' noise gives the parameters."""
+INPUT_NOISE_SHARE = 0.05
+"""The largest white-noise level, as a share of an input's standard deviation, that
+:func:`input_noise_covariance` takes as measurement noise (above it: broadband excitation)."""
+DIVERGED = 1e6
+"""The residual a diverged simulation is filled with."""
 
 
 @dataclass(frozen=True)
@@ -318,7 +323,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     n_eff = effective_rows(r)
-    extra = input_noise_covariance(problem, theta, sol.jac) if input_noise else None
+    extra = input_noise_covariance(problem, theta, r, sol.jac) if input_noise else None
     errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff, extra))))
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
     if fixed_tau is not None and problem.delay is not None:
@@ -361,56 +366,76 @@ def delay_standard_error(fitted: IdentifiedModel | IdentifiedSystem, experiments
     r"""The standard error of the delay that an output-error fit would report at the delay
     ``tau``: every other parameter (and each experiment's initial state) refitted with the
     delay held at ``tau``, then the standard error of :func:`standard_errors` from the
-    Jacobian there, the delay free.  At the true delay it is the asymptotic spread of an
+    Jacobian there, the delay free, plus the spread from the inputs' noise
+    (:func:`input_noise_covariance`).  At the true delay it is the asymptotic spread of an
     output-error estimate of :math:`\tau` on this record (a local linearisation, with the
-    noise level estimated from the residual; the Cramér–Rao bound when the noise is white
-    and on the output alone): ``cvxid bench --heldout`` compares each error with it."""
+    output's noise level estimated from the residual; the Cramér–Rao bound when the noise
+    is white and on the output alone): ``cvxid bench --heldout`` compares each error with it."""
     step = _experiments(experiments, _shortest(_system(fitted)))[0].dt
     fit = output_error(with_tau(fitted, tau), experiments, initial, step=step, max_iterations=100, fixed_tau=tau)
     problem = _problem_at(fit.system, experiments, fit.initial, None)
     if "tau" not in problem.names:
         raise CvxidError("delay_standard_error: the model has no fed-back delay to estimate")
     r, J = _linearise(problem)
-    se = standard_errors(J, r, extra=input_noise_covariance(problem, problem.start, J))
+    se = standard_errors(J, r, extra=input_noise_covariance(problem, problem.start, r, J))
     return float(se[problem.names.index("tau")])
 
 
-def input_noise_covariance(problem: "_Problem", theta: np.ndarray, jacobian: np.ndarray,
+def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.ndarray, jacobian: np.ndarray,
                            draws: int = INPUT_NOISE_DRAWS) -> np.ndarray | None:
     r"""The covariance that the noise on the measured inputs gives the fitted parameters.
 
-    The simulation reads the measured input :math:`u + n`, so its residual carries the
-    model's response :math:`G_\theta n`, and to first order the fit moves by
-    :math:`\delta = (J^T J)^{-1} J^T G_\theta n`.  The residual at the optimum shows that
+    The simulation reads the measured input :math:`u + n`, so its residual (simulated minus
+    measured, ``residual`` at ``theta``, Jacobian :math:`J`) carries the model's response
+    :math:`G_\theta n`, and to first order the fit moves by
+    :math:`\delta = -(J^T J)^{-1} J^T G_\theta n`.  The residual at the optimum shows that
     response only in part: the fit absorbs what lies along the columns of :math:`J`, and a
     lightly damped system's response to force noise sits at its resonance, where those
     columns are too.  So :math:`n` is drawn ``draws`` times as white noise of the level each
-    input carries (:func:`~cvxid.metrics.noise_level`), each draw simulated at ``theta``, and
+    input the model reads carries (:func:`~cvxid.metrics.noise_level`), each draw simulated
+    at ``theta``, and
 
     .. math:: \Sigma_u = \frac{1}{K} \sum_k \delta_k \delta_k^T .
 
-    Seeded: the same record gives the same errors.  None when no input carries noise."""
-    rng = np.random.default_rng(0)
+    * An upper estimate: the part of :math:`G_\theta n` the fit leaves in the residual is
+      counted by :func:`standard_errors` as well.  With :data:`INPUT_NOISE_DRAWS` draws
+      its standard errors carry a sampling error of about 25 %.
+    * An input whose white "noise" exceeds :data:`INPUT_NOISE_SHARE` of its standard
+      deviation is taken as broadband excitation (white noise, a PRBS), not as noise on a
+      smooth signal, and left out: :func:`~cvxid.metrics.noise_level` cannot tell the two
+      apart.
+    * A draw whose simulation diverges is left out.
+
+    Seeded: the same record gives the same errors.  None when no input counts."""
     experiments = problem.experiments
-    levels = [{name: noise_level(e.input(name)) for name in e.inputs} for e in experiments]
-    if not any(level > 0 for each in levels for level in each.values()):
+    read = {m.spec.input.lstrip("-").strip() for m in problem.base.models.values()}
+    levels = []
+    for e in experiments:
+        each = {name: noise_level(e.input(name)) for name in read & set(e.inputs)}
+        levels.append({n: v for n, v in each.items() if 0 < v <= INPUT_NOISE_SHARE * np.std(e.input(n))})
+    if not any(levels):
         return None
-    here = problem.residuals(theta[None, :])[:, 0]
     seen = np.any(jacobian != 0, axis=0)
     try:
         influence = np.zeros((theta.size, jacobian.shape[0]))
-        influence[seen] = np.linalg.solve(jacobian[:, seen].T @ jacobian[:, seen], jacobian[:, seen].T)
+        influence[seen] = -np.linalg.solve(jacobian[:, seen].T @ jacobian[:, seen], jacobian[:, seen].T)
     except np.linalg.LinAlgError:
         return None
+    rng = np.random.default_rng(0)
     step = experiments[0].dt * problem.stride
     moves = []
     for _ in range(draws):
-        noisy = [replace(e, inputs={name: e.input(name) + level * rng.standard_normal(e.time.size)
-                                    for name, level in each.items()}) for e, each in zip(experiments, levels)]
+        noisy = [replace(e, inputs={**e.inputs, **{name: e.input(name) + level * rng.standard_normal(e.time.size)
+                                                   for name, level in each.items()}})
+                 for e, each in zip(experiments, levels)]
         again = _Problem(problem.base, noisy, step, problem.initial(theta), problem.fixed_tau)
-        moves.append(influence @ (again.residuals(theta[None, :])[:, 0] - here))
+        response = again.residuals(theta[None, :])[:, 0] - residual
+        if np.all(np.isfinite(response)) and np.max(np.abs(response), initial=0.0) < DIVERGED / 2:
+            moves.append(influence @ response)
+    if not moves:
+        return None
     moves = np.array(moves)
-    return moves.T @ moves / draws
+    return moves.T @ moves / len(moves)
 
 
 def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
@@ -593,7 +618,7 @@ class _Problem:
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
                 out.append((X - Y[:, :, None]).reshape(-1, B))
             except SimulationDiverged:
-                out.append(np.full((Y.size, B), 1e6))
+                out.append(np.full((Y.size, B), DIVERGED))
         return np.vstack(out)
 
     def _forces(self, i: int, t: np.ndarray, values: dict, B: int):
