@@ -301,3 +301,19 @@ def test_broadband_excitation_is_not_taken_for_input_noise(tmp_path):
     problem = _problem_at(polished.system, [white], polished.initial, None)
     residual, jacobian = _linearise(problem)
     assert input_noise_covariance(problem, problem.start, residual, jacobian) is None
+
+
+@pytest.mark.parametrize("effect, smooth", [("none", True), ("coulomb", False)])
+def test_a_simulation_that_is_not_smooth_in_its_parameters_is_said(tmp_path, effect, smooth):
+    """The final fit's standard errors come from finite differences.  A smooth simulation
+    gives the same ones at a tenfold step (measured: within a factor 1.03 on 60 tuning
+    systems without friction); Coulomb friction switching inside a step does not (1.4 to 20
+    on the same systems with it): the user is warned and the larger errors are reported."""
+    oscillator = draw(1, effect, 0.01, 8.0)
+    result = run(write(oscillator, tmp_path, "structure", known_gain=True))
+    said = [w for w in result.warnings if "not smooth in the parameters" in w]
+    if smooth:
+        assert result.polish.jacobian_spread < 1.05 and not said
+    else:
+        assert result.polish.jacobian_spread > 1.25 and said
+        assert f"{result.polish.jacobian_spread:.3g}-fold" in said[0]

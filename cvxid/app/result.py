@@ -132,6 +132,7 @@ class RunResult:
                 "method": "output_error",
                 "rms_before": self.polish.rms_before,
                 "rms_after": self.polish.rms_after,
+                "jacobian_spread": self.polish.jacobian_spread,
                 "standard_errors": self.polish.standard_errors,
                 "seconds": self.polish.seconds,
             },

