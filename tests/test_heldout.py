@@ -277,6 +277,8 @@ def test_the_standard_error_counts_the_noise_on_the_force(tmp_path):
         fit = output_error(model, [record], step=record.dt, max_iterations=50, input_noise=True)
         again = output_error(fit.system, [record], fit.initial, step=record.dt, max_iterations=1)
         taus.append(fit.parameters["tau"])
+        alone = (fit.standard_errors["tau"] ** 2 / fit.input_noise_inflation) ** 0.5  # the profile's unit
+        assert alone == pytest.approx(again.standard_errors["tau"], rel=0.05)
         with_input.append(fit.standard_errors["tau"])
         residual_only.append(again.standard_errors["tau"])
     spread = np.std(taus, ddof=1)
@@ -317,3 +319,24 @@ def test_a_simulation_that_is_not_smooth_in_its_parameters_is_said(tmp_path, eff
     else:
         assert result.polish.jacobian_spread > 1.25 and said
         assert f"{result.polish.jacobian_spread:.3g}-fold" in said[0]
+
+
+@pytest.mark.parametrize("inflation", [1.0, 4.0])
+def test_the_delay_profile_threshold_counts_the_input_noise(inflation):
+    """The profile interval keeps the delays whose squared simulation error lies within
+    kappa * chi2(0.95) / n_eff of the best, kappa the variance the inputs' noise adds to the
+    delay's (as the standard error counts it): a parabola's interval is sqrt(kappa) wider."""
+    from types import SimpleNamespace
+
+    from scipy.stats import chi2
+
+    from cvxid.identify.output_error import _interval
+
+    n_eff, curvature, tau = 1000.0, 50.0, 0.15
+    taus = np.linspace(0.05, 0.25, 2001)
+    points = {float(t): (float(np.sqrt(1.0 + curvature * (t - tau) ** 2)), None) for t in taus}
+    best = SimpleNamespace(parameters={"tau": tau}, effective_rows=n_eff, rms_after=1.0,
+                           input_noise_inflation=inflation)
+    low, high = _interval(points, best).interval
+    half = np.sqrt(inflation * chi2.ppf(0.95, 1) / n_eff / curvature)
+    assert low == pytest.approx(tau - half, rel=1e-4) and high == pytest.approx(tau + half, rel=1e-4)

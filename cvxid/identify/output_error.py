@@ -107,6 +107,7 @@ class PolishResult:
     profile: DelayProfile | None = None  # the output-error profile over the delay
     effective_rows: float = 0.0  # independent residuals (their autocorrelation)
     jacobian_spread: float = 1.0  # standard errors' largest change with a 10x longer derivative step (1: smooth)
+    input_noise_inflation: float = 1.0  # the delay's variance with the inputs' noise / from the residual alone
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
 
     @property
@@ -234,12 +235,16 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
 
 def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayProfile:
     r"""The profile's delays whose refitted squared simulation error stays within
-    :math:`\chi^2_1(\text{level})/n_{\rm eff}` of the best (hull, linear crossings)."""
+    :math:`\kappa\,\chi^2_1(\text{level})/n_{\rm eff}` of the best (hull, linear
+    crossings).  :math:`\kappa` is the best fit's ``input_noise_inflation``: the noise on
+    the measured inputs spreads the delay :math:`\kappa` times as much as the residual
+    says, and the profile's likelihood ratio, read in the residual's units, is
+    :math:`\kappa\,\chi^2_1` distributed (to first order)."""
     taus = np.array(sorted(points))
     rms = np.array([points[t][0] for t in taus])
     tau = best.parameters["tau"]
     n_eff = best.effective_rows
-    bound = best.rms_after**2 * (1 + chi2.ppf(level, 1) / n_eff)
+    bound = best.rms_after**2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / n_eff)
     inside = np.flatnonzero(rms**2 <= bound)
     if inside.size == 0:
         return DelayProfile(taus, rms, tau, (tau, tau), n_eff, "output_error")
@@ -331,6 +336,10 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     n_eff = effective_rows(r)
     extra = input_noise_covariance(problem, theta, r, sol.jac) if input_noise else None
     errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff, extra))))
+    inflation = 1.0  # the delay's variance with the inputs' noise over that from the residual alone
+    if extra is not None and "tau" in problem.names:
+        alone = standard_errors(sol.jac, r, n_eff)[problem.names.index("tau")]
+        inflation = float((errors["tau"] / alone) ** 2) if alone > 0 else 1.0
     spread = 1.0
     if input_noise:  # the final fit: are its standard errors those of a smooth simulation?
         spread, coarse = _jacobian_spread(problem, jac(theta, ROUGH_STEP * JACOBIAN_STEP), sol.jac, r, n_eff)
@@ -347,7 +356,8 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
-                        effective_rows=n_eff, states=frozenset(problem.state_names), jacobian_spread=spread)
+                        effective_rows=n_eff, states=frozenset(problem.state_names), jacobian_spread=spread,
+                        input_noise_inflation=inflation)
 
 
 def _jacobian_spread(problem: "_Problem", coarse: np.ndarray, fine: np.ndarray, residual: np.ndarray,
