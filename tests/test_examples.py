@@ -102,7 +102,9 @@ def test_flexible_joint_example_accuracy_table(monkeypatch, tmp_path, capsys):
     row = next(line.split() for line in out.splitlines() if line.startswith("1 "))
     added, tau_ee, ks_ee, tau, k_s = row[1], *map(float, row[2:6])
     assert added == "coulomb(theta)"
-    assert abs(tau) < 0.1 and abs(k_s) < 0.5  # %, the output-error estimate (measured +0.03 %, -0.21 %)
+    # %, the output-error estimate (measured -0.044 %, -0.82 %; -0.05 %, -0.27 % before the integrator's friction
+    # became continuous: the rig's friction is smooth, tanh(v / 0.05), the model's sticks, and k_s carries the mismatch)
+    assert abs(tau) < 0.1 and abs(k_s) < 1.0
     assert abs(k_s) < abs(ks_ee) and abs(tau) < abs(tau_ee)  # the polish improves on the equation error
 
 
@@ -127,8 +129,8 @@ def test_unbalanced_disk_diagnosis_finds_the_input_delay_and_friction(tmp_path):
     damping, the diagnosis adds an input delay then Coulomb friction (then, since the
     acceptance rule of issue 13, theta^2, which the simulation stage added before), and the
     polished model's free-run RMS error on the last 20 % is under the 0.05 rad target
-    (measured 0.0296 rad after the simulation stage, 0.0322 rad before; 0.168 rad without the
-    input delay)."""
+    (measured 0.0326 rad; 0.0296 rad with the theta^3 that the simulation stage added before
+    the integrator's friction became continuous; 0.168 rad without the input delay)."""
     from cvxid.app.cli import main
 
     assert main(["run", "unbalanced_disk", "--out", str(tmp_path)]) == 0

@@ -25,10 +25,12 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     result = json.loads((tmp_path / "result.json").read_text())
     physical, truth = result["physical"], result["truth"]
     # the issue asked for 5 %; the joint output-error fit reaches the noise floor
-    # (measured: tau -0.04 %, k_s -0.33 %, J_eq +0.85 %)
+    # (measured: tau -0.03 %, k_s -0.91 %, J_eq +1.8 %; -0.04 %, -0.33 %, +0.85 % before the integrator's friction
+    # became continuous: the rig's friction is smooth, tanh(v / 0.05), the model's sticks, and k_s and J_eq carry
+    # the mismatch)
     assert physical["tau"] == pytest.approx(truth["tau"], rel=1e-3)
-    assert physical["k_s"] == pytest.approx(truth["k_s"], rel=5e-3)
-    assert physical["J_eq"] == pytest.approx(truth["J_eq"], rel=1e-2)  # the rig's friction is smooth, the model's sticks
+    assert physical["k_s"] == pytest.approx(truth["k_s"], rel=1.5e-2)
+    assert physical["J_eq"] == pytest.approx(truth["J_eq"], rel=2.5e-2)  # the rig's friction is smooth, the model's sticks
     # the starting library lacks the friction: the diagnosis ranks it first and adds it
     assert result["diagnosis"]["ranking"][0]["term"] == "sign(theta')"
     steps = result["refinement"]
@@ -214,7 +216,7 @@ FIXTURES = ROOT / "tests" / "fixtures"
 def test_model_files_written_by_the_previous_release_load_and_simulate_as_before(spec, fixture, fits):
     system = IdentifiedSystem.load(FIXTURES / fixture)
     test = load_problem(ROOT / "problems" / f"{spec}.toml").experiment("test")
-    # both models have a Coulomb term, now simulated with Karnopp's stick-slip (the test data
+    # both models have a Coulomb term, now simulated with a continuous stick-slip friction (the test data
     # of hidden_friction too): the fits move in the second decimal, no more
     # (from the record's own start, as that release simulated; the estimated start fits at least as well)
     assert system.compare(test, initial="record")["fit_percent"].to_dict() == pytest.approx(fits, abs=0.2)

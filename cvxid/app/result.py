@@ -247,8 +247,7 @@ class RunResult:
             *([f"  tau_u = {self.input_delay['estimate']:.5g} (input delay, {self.input_delay['method']}"
                + (f", 95 % interval {self.input_delay['interval'][0]:.5g} … {self.input_delay['interval'][1]:.5g})"
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
-            *([f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
-               f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s"] if self.polish else []),
+            *([f"  {self.polish.summary()}"] if self.polish else []),
             "",
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
@@ -276,8 +275,7 @@ class RunResult:
         else:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:
-            lines.append(f"  output-error polish: simulation RMS {self.polish.rms_before:.4g} -> "
-                         f"{self.polish.rms_after:.4g} in {self.polish.seconds:.1f} s")
+            lines.append(f"  {self.polish.summary()}")
         lines += ["", self.table().to_string(float_format=lambda v: f"{v:.5g}"), ""]
         if self.refinement is not None:
             lines += [repr(self.refinement), ""]
