@@ -114,3 +114,21 @@ def test_coulomb_friction_moves_the_simulation_continuously_with_its_parameters(
     x, _ = simulate(system, t, force, 0.3, 0.0)
     moves = np.linalg.norm(np.diff(x, axis=1), axis=0)
     assert np.max(moves) < 5 * np.median(moves), np.max(moves) / np.median(moves)
+
+
+@pytest.mark.parametrize("level", [0.8, 0.0, -0.5])
+def test_coulomb_friction_is_the_same_in_the_python_integrator(level):
+    """A user's own term sends a system to the Python integrator: its friction (positive:
+    the clip; zero; negative: a plain sign that pushes) is the compiled one's."""
+    from cvxid.model.terms import FunctionTerm
+
+    t = np.arange(0, 4, 1e-3)
+    force = lambda s: 3 * np.sin(1.9 * s) + 2 * np.sin(4.7 * s + 1)  # noqa: E731
+    nothing = FunctionTerm("nothing", "a user's term worth zero", lambda s: 0 * s["x"], frozenset({"x"}))
+    terms = (parse_term("x'"), parse_term("x"), parse_term("sign(x')"))
+    coefs = np.array([0.4, 6.0, level])
+    compiled = System(terms, coefs, 1.0, "x", 1.5, 0.15)
+    python = System(terms + (nothing,), np.r_[coefs, 1.0], 1.0, "x", 1.5, 0.15)
+    a, _ = simulate(compiled, t, force, 0.3, 0.0)
+    b, _ = simulate(python, t, force, 0.3, 0.0)
+    np.testing.assert_allclose(a, b, atol=1e-12)

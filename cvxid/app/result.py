@@ -133,6 +133,7 @@ class RunResult:
                 "rms_before": self.polish.rms_before,
                 "rms_after": self.polish.rms_after,
                 "jacobian_spread": self.polish.jacobian_spread,
+                "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
                 "standard_errors": self.polish.standard_errors,
                 "seconds": self.polish.seconds,

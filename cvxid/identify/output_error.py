@@ -107,7 +107,9 @@ class PolishResult:
     profile: DelayProfile | None = None  # the output-error profile over the delay
     effective_rows: float = 0.0  # independent residuals (their autocorrelation)
     jacobian_spread: float = 1.0  # standard errors' largest change with a 10x longer derivative step (1: smooth)
+    jacobian_spread_at: str = ""  # the parameter whose standard error changes most
     input_noise_inflation: float = 1.0  # the delay's variance with the inputs' noise / from the residual alone
+    # (both from the solver's Jacobian, whichever standard error is reported)
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
 
     @property
@@ -131,8 +133,8 @@ class PolishResult:
         line = (f"output-error polish: simulation RMS {self.rms_before:.4g} -> {self.rms_after:.4g} in "
                 f"{self.seconds:.1f} s")
         if self.jacobian_spread > ROUGH:
-            line += (f"; its standard errors change up to {self.jacobian_spread:.3g}-fold with the derivative's "
-                     "step (a friction that sticks and slips), the larger reported")
+            line += (f"; standard errors depend on the finite-difference step (up to {self.jacobian_spread:.2g}x "
+                     f"for {self.jacobian_spread_at}): the larger of the two are reported")
         return line
 
     def interval(self, name: str, z: float = 1.96) -> tuple[float, float]:
@@ -350,34 +352,40 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     if extra is not None and "tau" in problem.names:
         alone = standard_errors(sol.jac, r, n_eff)[problem.names.index("tau")]
         inflation = float((errors["tau"] / alone) ** 2) if alone > 0 else 1.0
-    spread = 1.0
+    spread, at = 1.0, ""
     if input_noise:  # the final fit: are its standard errors those of a smooth simulation?
-        spread, coarse = _jacobian_spread(problem, jac(theta, ROUGH_STEP * JACOBIAN_STEP), sol.jac, r, n_eff)
+        spread, at, coarse = _jacobian_spread(problem, jac(theta, ROUGH_STEP * JACOBIAN_STEP), sol.jac, r, n_eff)
         if spread > ROUGH:  # the derivative depends on its step: the larger errors (see summary())
-            errors = {n: max(e, c) for (n, e), c in zip(errors.items(), standard_errors(coarse, r, n_eff, extra))}
+            errors = {n: float(np.fmax(e, c))
+                      for (n, e), c in zip(errors.items(), standard_errors(coarse, r, n_eff, extra))}
     errors.update({a: abs(f) * errors[b] for a, (b, f) in problem.tied.items()})
     if fixed_tau is not None and problem.delay is not None:
         errors["tau"] = 0.0
     return PolishResult(problem.result(theta), problem.values(theta), errors, before, after,
                         problem.initial(theta), int(sol.nfev), time.perf_counter() - start,
                         effective_rows=n_eff, states=frozenset(problem.state_names), jacobian_spread=spread,
-                        input_noise_inflation=inflation)
+                        jacobian_spread_at=at, input_noise_inflation=inflation)
 
 
 def _jacobian_spread(problem: "_Problem", coarse: np.ndarray, fine: np.ndarray, residual: np.ndarray,
-                     n_eff: float) -> tuple[float, np.ndarray]:
+                     n_eff: float) -> tuple[float, str, np.ndarray]:
     r"""The largest factor between the model parameters' standard errors from the Jacobian
     ``fine`` (the solver's step) and ``coarse`` (a step :data:`ROUGH_STEP` times longer),
-    and ``coarse``.  A simulation smooth in its parameters gives the same derivatives at
-    both steps (measured: factors within 1.03 on 60 held-out systems without friction).
-    A friction that sticks and slips bends the simulation error at every switch: its
-    derivatives then depend on the scale they are taken at (factors 1.0–6.4 on 20 report
-    systems with Coulomb friction; 0.04–16 before the integrator's friction was made
-    continuous, when the simulation jumped)."""
+    the parameter it is found at, and ``coarse``.  A simulation smooth and well
+    conditioned in its parameters gives the same derivatives at both steps (measured:
+    within 1.03 on 60 tuning systems without friction, the feedback gain known).  A friction
+    that sticks and slips bends the simulation error at every switch, and its derivatives
+    depend on the scale they are taken at (factors 1.0–6.4 on 20 report systems with
+    Coulomb friction; up to 25 when the integrator's friction still jumped); a nearly
+    singular fit (a free gain that trades with the stiffness) moves them too (1.29 on
+    tuning seed 1 without friction)."""
     keep = [i for i, n in enumerate(problem.names) if n not in problem.state_names]
     ratio = standard_errors(coarse, residual, n_eff)[keep] / standard_errors(fine, residual, n_eff)[keep]
-    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-    return (float(np.exp(np.max(np.abs(np.log(ratio))))) if ratio.size else 1.0), coarse
+    factor = np.where(np.isfinite(ratio) & (ratio > 0), np.exp(np.abs(np.log(np.abs(ratio) + 1e-300))), np.nan)
+    if not np.any(np.isfinite(factor)):
+        return 1.0, "", coarse
+    i = int(np.nanargmax(factor))
+    return float(factor[i]), problem.names[keep[i]], coarse
 
 
 def standard_errors(jacobian: np.ndarray, residual: np.ndarray, n_eff: float | None = None,
