@@ -132,6 +132,11 @@ class ModelSpec:
         return list(cols.values())
 
     @property
+    def input_column(self) -> str:
+        """The measured input this equation reads (``"-u"`` reads the column ``u``)."""
+        return self.input.lstrip("-").strip()
+
+    @property
     def input_tau(self) -> float:
         """The input's delay :math:`\\tau_u` (0 without one)."""
         return self.input_delay.value if self.input_delay is not None else 0.0

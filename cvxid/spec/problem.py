@@ -200,7 +200,7 @@ class ProblemSpec:
         return experiment.slice(*part_bounds(experiment.n, table.get("samples"), table.get("fraction"), where))
 
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
-        inputs = sorted({s.input.lstrip("-").strip() for s in self.equations.values()})
+        inputs = sorted({s.input_column for s in self.equations.values()})
         velocity = table.get("velocity")
         if velocity is None and self.fit.velocity not in ESTIMATORS + ("measured", "auto"):
             velocity = self.fit.velocity  # [fit] velocity names a measured column
