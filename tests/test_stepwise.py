@@ -45,3 +45,20 @@ def test_stepwise_refuses_settings_it_replaces():
     raw_spec = _hidden_friction(orders={"min": 1, "max": 3})
     with pytest.raises(CvxidError, match='"stepwise_oe" selects the terms itself'):
         run(raw_spec)
+
+
+@pytest.mark.slow
+def test_stepwise_profiles_the_delay_of_the_terms_it_selected(tmp_path):
+    """A held-out oscillator (tuning seed 1, no hidden effect, gain known): the search's
+    fits are local in the delay and ran from where the base terms x, x' put it, near 0.
+    c3af0fd reported tau = 0.00003 s for a truth of 0.1523 s with no interval; the final
+    polish profiles the delay again on the selected terms (measured: 0.1522, -0.09 %)."""
+    from cvxid.tools.heldout import draw, write
+
+    oscillator = draw(1, "none", 0.01, 8.0)
+    result = run(write(oscillator, tmp_path, "selection", known_gain=True, fit={"estimator": "stepwise_oe"}))
+    truth = oscillator.tau
+    low, high = result.tau["interval"]
+    assert result.tau["estimate"] == pytest.approx(truth, rel=0.02) and low <= truth <= high
+    assert result.polish is result.stepwise.final and result.to_dict()["tau"]["interval"] == [low, high]
+    assert "polish (delay profiled)" in result.stepwise.history["action"].iloc[-1]

@@ -6,11 +6,9 @@ import json
 import os
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 
 from cvxid.errors import CvxidError
-from cvxid.plots import coordinates_figure, delay_profile_figure, path_figure
 
 
 def plain(value):
@@ -34,6 +32,8 @@ def records(frame) -> dict:
 def coupled_fit_figure(test, system, table):
     """Every coordinate's free run on the test record from the estimated start in ``table``
     (:meth:`~cvxid.identified.IdentifiedSystem.compare`)."""
+    from cvxid.plots import coordinates_figure  # matplotlib is imported when a figure is drawn
+
     start = {c: (table.loc[c, "initial_position"], table.loc[c, "initial_velocity"]) for c in table.index}
     fits = ", ".join(f"{c} {table.loc[c, 'fit_percent']:.1f} % ({table.loc[c, 'record_fit_percent']:.1f} %; "
                      f"noise allows {table.loc[c, 'noise_ceiling_percent']:.1f} %)" for c in table.index)
@@ -88,6 +88,10 @@ def write_report(result, out) -> tuple[Path, str | None]:
     ``orders``; when the one-equation diagnosis added an effect ``responses`` and
     ``residuals``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
     and what an earlier run had left there (:func:`earlier_run`), or None."""
+    import matplotlib.pyplot as plt  # imported when a report is written, not with cvxid
+
+    from cvxid.plots import delay_profile_figure, path_figure
+
     out = prepare_folder(out)
     replaced = earlier_run(out)
     data = result.to_dict()

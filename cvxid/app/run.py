@@ -419,19 +419,21 @@ def _score(out: RunResult, test_rows: SystemBuilder | None):
 def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_rows: SystemBuilder | None,
               train: Experiment, test: Experiment | None) -> RunResult:
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
-    (:mod:`cvxid.identify.stepwise`), the final model polished at the sample step."""
+    (:mod:`cvxid.identify.stepwise`), then the delay profiled on them and every parameter
+    polished at the sample step; the delay's interval is the profile's."""
     ((label, family),) = rows.builders.items()
     search = stepwise_output_error(system.single, family, train)
     model = search.model
     system = IdentifiedSystem.of(model)
     problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)
-    estimate = model.tau if model.tau is not None else model.physical.get("tau")
-    tau_info = None if spec.model.delay is None else {"estimate": estimate, "interval": None, "method": "output_error"}
-    late = model.spec.input_delay
+    fitted = search.final
+    tau_info = {"estimate": fitted.parameters["tau"], "interval": list(fitted.interval("tau")),
+                "method": "output_error"} if "tau" in fitted.parameters else None
+    late = {"estimate": fitted.parameters["tau_u"], "interval": list(fitted.interval("tau_u")),
+            "method": "output_error"} if "tau_u" in fitted.parameters else None
     out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), tau=tau_info,
-                    stepwise=search, window=rows.window,
-                    input_delay={"estimate": late.value, "interval": None, "method": "output_error"}
-                    if late is not None and late.free else None)
+                    stepwise=search, window=rows.window, input_delay=late)
+    out.polish = fitted
     _score(out, test_rows)
     return out
 

@@ -46,8 +46,10 @@ from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, linearisation, output_error, residual
 from cvxid.identify.profile import effective_rows
+from cvxid.identify.score import score_gains
 from cvxid.model.library import resolve_term
 from cvxid.model.terms import InputRate
+from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged
 
@@ -102,6 +104,7 @@ class SimulationRefinement:
         return text
 
 
+@one_blas_thread
 def score_candidates(model: IdentifiedModel, train: Experiment, candidates: Sequence[str],
                      initial=None) -> pd.DataFrame:
     """Each candidate's score statistic (see the module docstring) at the polished
@@ -121,11 +124,10 @@ def score_candidates(model: IdentifiedModel, train: Experiment, candidates: Sequ
             j = (residual(trial, train, initial) - base) / STEP
         except SimulationDiverged:
             continue
-        perp = j - J @ np.linalg.lstsq(J, j, rcond=None)[0]
-        statistic = float((perp @ r) ** 2 / max(perp @ perp, 1e-300) / sigma2 * colour)
-        share = float((perp @ r) ** 2 / max((perp @ perp) * (r @ r), 1e-300))
-        if perp @ r > 0 and (name == "input_delay" or term.name in trial.spec.nonnegative):
-            statistic = share = 0.0  # its Gauss-Newton step -(perp r)/(perp perp) is negative: the sign forbids it
+        (gain,), (step,) = score_gains(r, J, j)
+        statistic, share = float(gain / sigma2 * colour), float(gain / max(r @ r, 1e-300))
+        if step < 0 and (name == "input_delay" or term.name in trial.spec.nonnegative):
+            statistic = share = 0.0  # its Gauss-Newton step is negative: the sign forbids it
         rows.append({"effect": name, "term": term.name, "meaning": term.meaning, "score": statistic, "share": share})
     frame = pd.DataFrame(rows, columns=["effect", "term", "meaning", "score", "share"]).set_index("effect")
     return frame.sort_values("score", ascending=False)

@@ -55,6 +55,7 @@ from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
 from cvxid.metrics import noise_level
+from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
@@ -172,6 +173,7 @@ def _shortest(system: IdentifiedSystem) -> float:
     return 2 * delay.tau_max if delay is not None and delay.exact else 0.0
 
 
+@one_blas_thread
 def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
            max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
            initial=None) -> PolishResult:
@@ -298,6 +300,7 @@ def with_tau(fitted: IdentifiedModel | IdentifiedSystem, tau: float):
     return replace(fitted, models=models, tau=float(tau) if fitted.tau is not None else None)
 
 
+@one_blas_thread
 def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float = 1e-3,
                  max_iterations: int = 30, fixed_tau: float | None = None, input_noise: bool = False) -> PolishResult:
     """Polish ``fitted`` on ``experiments`` by output error from its own delay (see the

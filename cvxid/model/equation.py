@@ -13,6 +13,7 @@ coefficients and physical parameters.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from typing import Mapping
 
 from cvxid.errors import CvxidError
@@ -238,11 +239,17 @@ class ModelSpec:
 
     def named_parameter(self, term_name: str) -> tuple[str, float]:
         """(physical name, sign): a name given as ``"-alpha"`` is minus the coefficient."""
+        return self._named_terms.get(term_name, (term_name, 1.0))
+
+    @cached_property
+    def _named_terms(self) -> dict[str, tuple[str, float]]:
+        """Term name -> (physical name, sign) of ``names`` (parsed once: the output-error
+        fits ask for every parameter's name at every simulation)."""
+        named = {}
         for pname, tname in self.names.items():
             sign, bare = _bare(tname)
-            if parse_term(bare, self.coordinates).name == term_name:
-                return pname, sign
-        return term_name, 1.0
+            named.setdefault(parse_term(bare, self.coordinates).name, (pname, sign))
+        return named
 
     def physical(self, coefficients: Mapping[str, float], tau: float | None = None) -> dict[str, float]:
         """Physical parameters by name: ``m``, each term's coefficient, ``tau`` (and the

@@ -1,0 +1,37 @@
+r"""The score (Lagrange-multiplier) test: what one more parameter would do to a
+least-squares fit, read from the fit's own linearisation, without refitting.
+
+At a fit with residual :math:`r` and Jacobian :math:`J` in its parameters, a new parameter
+:math:`c` (zero at the fit) with column :math:`j_c = \partial r/\partial c` can explain only
+the part of :math:`j_c` the fitted parameters cannot:
+
+.. math::
+
+    j_\perp = (I - J J^+)\, j_c, \qquad
+    \Delta_c = \frac{(j_\perp^T r)^2}{j_\perp^T j_\perp}, \qquad
+    \delta_c = -\frac{j_\perp^T r}{j_\perp^T j_\perp},
+
+:math:`\Delta_c` the first-order fall of :math:`r^T r` when :math:`c` is fitted with the
+others, at the Gauss–Newton step :math:`\delta_c`.  The diagnosis by simulation error
+(:mod:`cvxid.diagnosis.simulation`) turns :math:`\Delta_c` into a :math:`\chi^2_1`
+statistic; the stepwise search (:mod:`cvxid.identify.stepwise`) ranks its candidates by it
+before fitting the best of them.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def score_gains(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each column of ``columns`` ``(n, c)``: the first-order fall :math:`\\Delta_c` of
+    the squared residual when it joins the fit of ``jacobian`` ``(n, p)`` at ``residual``
+    ``(n,)``, and its Gauss–Newton step :math:`\\delta_c` (see the module docstring).  A
+    column the fit already spans gains 0 at step 0."""
+    columns = np.asarray(columns, float).reshape(residual.size, -1)
+    perp = columns - jacobian @ np.linalg.lstsq(jacobian, columns, rcond=None)[0]
+    along = perp.T @ residual
+    norms = np.einsum("ij,ij->j", perp, perp)
+    spanned = norms <= 1e-24 * np.maximum(np.einsum("ij,ij->j", columns, columns), 1e-300)
+    safe = np.where(spanned, 1.0, norms)
+    return np.where(spanned, 0.0, along**2 / safe), np.where(spanned, 0.0, -along / safe)
