@@ -162,3 +162,24 @@ def test_feedback_without_delay_is_identified_with_a_zero_delay(tmp_path):
     k, gain = result["physical"]["x"], result["physical"]["gain"]
     assert k - gain == pytest.approx(6.0 - 1.5, rel=0.01)
     assert any("not identified separately" in w and "Give the gain" in w for w in result["warnings"])
+
+
+@pytest.mark.slow
+def test_a_record_sampled_faster_than_the_profile_step_gets_a_profile_interval():
+    """problems/duffing_delay_exact.toml is sampled at 5 kHz; the delay profile simulates
+    on a 1 ms step.  Its interval compared the profile with the final fit's error at the
+    sample step, which differs from the profile's by more than the interval's threshold
+    (0.6 % against 0.01 %): the interval spread over whatever part of the profile lay below
+    it (c3af0fd: 0.1583 ... 0.2266, half-width 17 % of the delay; 1.8 to 17 % over the
+    noise seeds 1-8).  Read against the converged fit on its own step it is 0.1944 ...
+    0.2027 (1.9 to 4.1 % over those seeds, all eight covering 0.2), beside the standard
+    error's 1.96 se = 1.9 %."""
+    from cvxid.app.run import run
+
+    from .conftest import ROOT
+
+    result = run(ROOT / "problems" / "duffing_delay_exact.toml")
+    low, high = result.tau["interval"]
+    se = result.polish.standard_errors["tau"]
+    assert low <= 0.2 <= high
+    assert (high - low) / 2 < 3 * 1.96 * se, (low, high, se)

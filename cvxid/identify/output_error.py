@@ -200,14 +200,22 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     except CvxidError as exc:
         raise CvxidError(f"the output-error polish failed ({exc})") from exc
     before = output_rms(system, experiments)
+    level = best  # the fit on the profile's own simulation step: the profile is read against it
     if final:
         best = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
                             max_iterations=final_iterations, input_noise=True)
+        if _stride(coarse_step, experiments) == 1:  # the sample step is the profile's step
+            level = best
     profile = None
     if points:
-        points[best.parameters["tau"]] = (best.rms_after, best)
+        points[level.parameters["tau"]] = (level.rms_after, level)
         profile = _interval(points, best)
     return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
+
+
+def _stride(step: float, experiments: list[Experiment]) -> int:
+    """Samples per simulation step of about ``step`` (at least 1), as :class:`_Problem` takes it."""
+    return max(1, int(round(step / experiments[0].dt)))
 
 
 def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, grid: int) -> dict:
@@ -249,16 +257,19 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
 
 def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayProfile:
     r"""The profile's delays whose refitted squared simulation error stays within
-    :math:`\kappa\,\chi^2_1(\text{level})/n_{\rm eff}` of the best (hull, linear
-    crossings).  :math:`\kappa` is the best fit's ``input_noise_inflation``: the noise on
-    the measured inputs spreads the delay :math:`\kappa` times as much as the residual
-    says, and the profile's likelihood ratio, read in the residual's units, is
-    :math:`\kappa\,\chi^2_1` distributed (to first order)."""
+    :math:`\kappa\,\chi^2_1(\text{level})/n_{\rm eff}` of its least (hull, linear
+    crossings).  Every point is on the profile's own simulation step (a record sampled
+    faster than that step has a slightly different error at its sample step, and the two
+    must not be compared).  :math:`\kappa` is the best fit's
+    ``input_noise_inflation``: the noise on the measured inputs spreads the delay
+    :math:`\kappa` times as much as the residual says, and the profile's likelihood ratio,
+    read in the residual's units, is :math:`\kappa\,\chi^2_1` distributed (to first
+    order)."""
     taus = np.array(sorted(points))
     rms = np.array([points[t][0] for t in taus])
     tau = best.parameters["tau"]
     n_eff = best.effective_rows
-    bound = best.rms_after**2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / n_eff)
+    bound = rms.min() ** 2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / n_eff)
     inside = np.flatnonzero(rms**2 <= bound)
     if inside.size == 0:
         return DelayProfile(taus, rms, tau, (tau, tau), n_eff, "output_error")
