@@ -264,8 +264,8 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
     with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
         warnings.simplefilter("ignore", CvxidWarning)
         final = polish(fit.model, train, coarse_step=step, initial=fit.initial)
-    rows.append({"step": len(rows), "action": "polish (delay profiled) at the sample step", "term": "",
-                 "rms": final.rms_after})
+    action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
+    rows.append({"step": len(rows), "action": action, "term": "", "rms": final.rms_after})
     info = dict(final.model.info, selection="stepwise output error")
     chosen = IdentifiedModel(final.model.spec, final.model.coefficients, 0.0, info, final.model.tau)
     return Stepwise(chosen, pd.DataFrame(rows), sigma, time.perf_counter() - start, final)
