@@ -62,3 +62,23 @@ def test_stepwise_profiles_the_delay_of_the_terms_it_selected(tmp_path):
     assert result.tau["estimate"] == pytest.approx(truth, rel=0.02) and low <= truth <= high
     assert result.polish is result.stepwise.final and result.to_dict()["tau"]["interval"] == [low, high]
     assert "polish (delay profiled)" in result.stepwise.history["action"].iloc[-1]
+
+
+def test_removals_are_tried_least_significant_first_and_a_dropped_or_undetermined_term_first_of_all():
+    """The backward step's order (Wald statistic |theta| / se, smallest first).  A term
+    the fit left out (coefficient exactly 0: the simulation drops it, so the fit has no
+    parameter for it) or whose standard error is undetermined (NaN: it moves nothing) must
+    come first, not raise or sort last."""
+    from types import SimpleNamespace
+
+    from cvxid.identify.stepwise import _least_significant
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+    from cvxid.model.terms import parse_term
+
+    spec = ModelSpec(Library([parse_term(n) for n in ["x", "x'", "x^3", "x^2", "x'^3"]]))
+    fit = SimpleNamespace(model=SimpleNamespace(spec=spec),
+                          parameters={"x": 6.0, "x'": 0.4, "x^3": 0.05, "x'^3": 1.0},  # x^2 left out
+                          standard_errors={"x": 0.01, "x'": 0.1, "x^3": 0.01, "x'^3": float("nan")})
+    order = _least_significant(["x", "x'", "x^3", "x^2", "x'^3"], fit)
+    assert set(order[:2]) == {"x^2", "x'^3"} and order[2:] == ["x'", "x^3", "x"]
