@@ -398,12 +398,16 @@ def _polish(out: RunResult):
                                                          settings.max_steps)
         out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
-    if "tau" in out.polish.parameters:
-        out.tau = {"estimate": out.polish.parameters["tau"], "interval": list(out.polish.interval("tau")),
-                   "method": "output_error"}
-    if "tau_u" in out.polish.parameters:
-        out.input_delay = {"estimate": out.polish.parameters["tau_u"], "interval": list(out.polish.interval("tau_u")),
-                           "method": "output_error"}
+    _delays_of_polish(out)
+
+
+def _delays_of_polish(out: RunResult) -> None:
+    """The fed-back and the input's delays (estimate, 95 % interval) of ``out.polish``, when
+    it fitted them, in place of the earlier stages'."""
+    for name, attribute in (("tau", "tau"), ("tau_u", "input_delay")):
+        if name in out.polish.parameters:
+            setattr(out, attribute, {"estimate": out.polish.parameters[name],
+                                     "interval": list(out.polish.interval(name)), "method": "output_error"})
 
 
 def _score(out: RunResult, test_rows: SystemBuilder | None):
@@ -426,14 +430,10 @@ def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_r
     model = search.model
     system = IdentifiedSystem.of(model)
     problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)
-    fitted = search.final
-    tau_info = {"estimate": fitted.parameters["tau"], "interval": list(fitted.interval("tau")),
-                "method": "output_error"} if "tau" in fitted.parameters else None
-    late = {"estimate": fitted.parameters["tau_u"], "interval": list(fitted.interval("tau_u")),
-            "method": "output_error"} if "tau_u" in fitted.parameters else None
-    out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), tau=tau_info,
-                    stepwise=search, window=rows.window, input_delay=late)
-    out.polish = fitted
+    out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), stepwise=search,
+                    window=rows.window)
+    out.polish = search.final
+    _delays_of_polish(out)
     _score(out, test_rows)
     return out
 

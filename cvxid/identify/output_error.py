@@ -214,7 +214,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
 
 
 def _stride(step: float, experiments: list[Experiment]) -> int:
-    """Samples per simulation step of about ``step`` (at least 1), as :class:`_Problem` takes it."""
+    """Samples per simulation step of about ``step`` (at least 1)."""
     return max(1, int(round(step / experiments[0].dt)))
 
 
@@ -545,7 +545,7 @@ class _Problem:
         self.base, self.experiments = system, experiments
         self._inputs: dict[tuple, np.ndarray] = {}  # each experiment's inputs at the RK4 nodes
         self.one = system.single is not None
-        self.stride = max(1, int(round(step / experiments[0].dt)))
+        self.stride = _stride(step, experiments)
         self.systems = {label: m.system() for label, m in system.models.items()}
         self.coordinates = system.coordinates
         gains = [float(s.gain) for s in self.systems.values()]
