@@ -199,3 +199,95 @@ def test_a_term_the_data_do_not_show_is_named_after_the_polish(tmp_path):
     warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
     said = [w for w in warnings if "the data do not determine" in w]
     assert len(said) == 1 and "x^2 (" in said[0] and "x (" not in said[0] and "x' (" not in said[0], warnings
+
+
+def test_a_constant_output_is_refused():
+    """A record whose output never moves (a wrong column, a dead sensor) holds nothing to
+    identify: an error, not a model with an inertia of 1e24."""
+    e = Experiment(T, {"x": np.full(T.size, 0.3)}, {"f": np.sin(T)})
+    with pytest.raises(CvxidError, match="output 'x' is constant, so the record holds no motion"):
+        RegressionBuilder(MODEL, e, "savgol")
+
+
+def test_one_column_as_output_and_input_is_refused(tmp_path):
+    from cvxid.data.experiment import load
+
+    np.savetxt(tmp_path / "r.csv", np.column_stack([T, np.sin(T), np.cos(T)]), delimiter=",", header="t,x,f",
+               comments="")
+    with pytest.raises(CvxidError, match="column 'x' is both a measured output and an input"):
+        load(tmp_path / "r.csv", "t", {"x": "x"}, {"f": "x"})
+
+
+def test_load_takes_a_column_name_or_a_list_and_names_a_wrong_argument(tmp_path):
+    from cvxid.data.experiment import load
+
+    np.savetxt(tmp_path / "r.csv", np.column_stack([T, np.sin(T), np.cos(T)]), delimiter=",", header="t,x,f",
+               comments="")
+    by_name = load(tmp_path / "r.csv", "t", "x", ["f"])
+    by_mapping = load(tmp_path / "r.csv", "t", {"x": "x"}, {"f": "f"})
+    assert np.array_equal(by_name.output("x"), by_mapping.output("x"))
+    assert np.array_equal(by_name.input("f"), np.cos(T))
+    with pytest.raises(CvxidError, match=r"outputs names the file's columns: a column name \('x'\), a list"):
+        load(tmp_path / "r.csv", "t", 3, "f")
+
+
+DELAYED = """name = "delayed"
+[data.train]
+file = "train.csv"
+[model.library]
+terms = ["x", "x'"]
+[model.delay]
+signal = "x"
+gain = 2.0
+method = "exact"
+tau_max = {tau_max}
+[fit]
+estimator = "lstsq"
+refine = "output_error"
+"""
+
+
+def _delayed_record(tmp_path, rng, tau: float = 0.15, dt: float = 1e-3):
+    """x'' + 0.8 x' + 9 x = f + 2 x(t - tau), 6 s, noise 0.001, written as train.csv."""
+    from cvxid.simulate import System, simulate
+
+    t = np.arange(6000) * 1e-3
+    force = lambda s: 4 * np.sin(2.3 * s) + 3 * np.sin(6.1 * s + 1)  # noqa: E731
+    system = System((parse_term("x'"), parse_term("x")), np.array([0.8, 9.0]), 1.0, "x", gain=2.0, tau=tau)
+    x, _ = simulate(system, t, force, 0.0, 0.0)
+    x = x + 1e-3 * rng.standard_normal(t.size)
+    np.savetxt(tmp_path / "train.csv", np.column_stack([t * dt / 1e-3, x, force(t)]), delimiter=",",
+               header="t,x,f", comments="")
+
+
+def test_a_delay_at_the_top_of_its_range_is_a_warning(tmp_path, rng):
+    """The true delay 0.15 s searched up to 0.1 s: the estimate sits on tau_max and the
+    result says the delay may be longer; searched up to 0.3 s, no such warning."""
+    import json
+
+    from cvxid.app.cli import main
+
+    _delayed_record(tmp_path, rng)
+    said = {}
+    for tau_max in (0.1, 0.3):
+        (tmp_path / "spec.toml").write_text(DELAYED.format(tau_max=tau_max))
+        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / f"o{tau_max}")]) == 0
+        result = json.loads((tmp_path / f"o{tau_max}" / "result.json").read_text())
+        said[tau_max] = [w for w in result["warnings"] if "top of its search range" in w]
+    assert said[0.1] and "raise [model.delay] tau_max" in said[0.1][0], said
+    assert not said[0.3]
+
+
+def test_a_time_column_in_milliseconds_is_named(tmp_path, capsys, rng):
+    """Time written in ms (dt = 1): tau_max = 0.3 is shorter than one sample, an error
+    that names the units, not a model with an inertia of 6e5."""
+    _delayed_record(tmp_path, rng, dt=1.0)
+    err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3))
+    assert "tau_max = 0.3 s is shorter than one sample" in err and "time column's units" in err, err
+
+
+def test_a_spec_data_error_names_its_table(tmp_path, capsys, rng):
+    _delayed_record(tmp_path, rng)
+    err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3).replace('file = "train.csv"',
+                                                                         'file = "train.csv"\ntime = "time"'))
+    assert err.startswith("cvxid: error: spec: [data.train]") and "no column named 'time'" in err, err

@@ -71,6 +71,18 @@ def test_the_window_is_chosen_from_the_output_band_and_checked(rng):
         resolve_window(30.0, spec, [e])
 
 
+def test_the_window_holds_when_the_noise_is_half_the_signal(rng):
+    """Noise of half the output's spread: the noise's bins above the band scatter about
+    the floor, and summed with their sign they leave the band edge where the signal is
+    (clipped at the floor they ran it to Nyquist: a window of 21 samples, a diverging model)."""
+    spec = ModelSpec(Library([parse_term("x")]))
+    quiet = resolve_window("auto", spec, [_oscillator(20.0, rng)]).seconds
+    clean = _oscillator(20.0, rng, noise=0.0)
+    noisy = Experiment(clean.time, {"x": clean.output("x") + 0.5 * np.std(clean.output("x"))
+                                    * rng.standard_normal(clean.n)}, {"f": clean.input("f")})
+    assert resolve_window("auto", spec, [noisy]).seconds == pytest.approx(quiet, rel=0.3)
+
+
 def _delayed(history: str, tau: float, start: int = 0):
     terms = (parse_term("x"), parse_term("x'"))
     return System(terms, np.array([6.0, 0.5]), 1.0, "x", 2.0, tau, 0, history)

@@ -91,10 +91,13 @@ def test_a_spec_turns_it_off_or_sets_it_and_bad_values_name_the_field(tmp_path):
 def test_on_a_held_out_system_it_drops_the_spurious_term_the_whole_record_kept(tmp_path):
     # tuning seed 5, a hidden Coulomb friction, noise 0.01, 18 candidate terms: without
     # stability selection the adaptive lasso keeps x'|x'| beside the true terms (measured);
-    # the stable support passes the 1se rule's bound and is taken
-    plain = run_one(5, "coulomb", 0.01, 8.0, mode="selection", known_gain=True, fit={"stability": False})
+    # the stable support passes the 1se rule's bound and is taken (the selection itself: no
+    # pruning by simulation error after it)
+    plain = run_one(5, "coulomb", 0.01, 8.0, mode="selection", known_gain=True, fit={"stability": False,
+                                                                                       "prune": False})
     assert plain["status"] == "ok" and not plain["support recovered"] and plain["spurious"] == "x'|x'|"
-    stable = run_one(5, "coulomb", 0.01, 8.0, mode="selection", known_gain=True, keep=tmp_path)
+    stable = run_one(5, "coulomb", 0.01, 8.0, mode="selection", known_gain=True, keep=tmp_path,
+                     fit={"prune": False})
     assert stable["status"] == "ok" and stable["support recovered"], (stable["missed"], stable["spurious"])
     (folder,) = tmp_path.iterdir()
     result = json.loads((folder / "result.json").read_text())
@@ -107,7 +110,10 @@ def test_a_stable_support_the_test_record_rejects_is_not_taken(tmp_path):
     # tuning seed 0, no hidden effect, noise 0.01: the halves keep exactly x, x', x^3, but
     # x^3 x'^2 lowers the test record's equation error beyond the 1se bound (it stands in
     # for the velocity estimate's error in both records), so the whole record's choice stays
-    stable = run_one(0, "none", 0.01, 8.0, mode="selection", known_gain=True, keep=tmp_path)
+    # (the selection itself: the pruning by simulation error after it removes x^3 x'^2)
+    stable = run_one(0, "none", 0.01, 8.0, mode="selection", known_gain=True, keep=tmp_path, fit={"prune": False})
+    pruned = run_one(0, "none", 0.01, 8.0, mode="selection", known_gain=True)
+    assert pruned["support recovered"], (pruned["missed"], pruned["spurious"])
     (folder,) = tmp_path.iterdir()
     result = json.loads((folder / "result.json").read_text())
     inclusion = result["stability"]["inclusion"]

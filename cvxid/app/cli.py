@@ -174,6 +174,8 @@ def _heldout(args) -> int:
     fit = {k: v for k, v in (("estimator", args.estimator), ("selection", args.selection)) if v}
     if args.stability:
         fit["stability"] = args.stability == "on"
+    if args.prune:
+        fit["prune"] = args.prune == "on"
     for key, choices in (("estimator", SELECTORS), ("selection", SELECTION_RULES)):
         if key in fit and fit[key] not in choices:
             raise CvxidError(f"--{key} must be one of {', '.join(choices)}, got '{fit[key]}'")
@@ -267,6 +269,9 @@ def main(argv=None) -> int:
                          help="the specs' [fit] selection rule (--heldout; default: the documented default)")
     p_bench.add_argument("--stability", default=None, choices=("on", "off"),
                          help="the specs' [fit] stability selection (--heldout; default: the documented default)")
+    p_bench.add_argument("--prune", default=None, choices=("on", "off"),
+                         help="the specs' [fit] prune: selected terms pruned by simulation error (--heldout; default: "
+                              "the documented default)")
     p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
     p_bench.add_argument("--keep", default=None, help="keep each system's data, spec and result.json here (--heldout)")
     p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")

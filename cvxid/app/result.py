@@ -24,7 +24,7 @@ from cvxid.identify.orders import OrderSearch
 from cvxid.identify.output_error import PolishResult
 from cvxid.identify.path import Path
 from cvxid.identify.problem import Problem
-from cvxid.identify.stepwise import Stepwise
+from cvxid.identify.stepwise import Pruning, Stepwise
 from cvxid.regression.windows import Windows
 from cvxid.regression.algebraic import AlgebraicOrders
 from cvxid.spec.problem import ProblemSpec
@@ -60,6 +60,7 @@ class RunResult:
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
     stability: Stability | None = None  # stability selection's inclusion probabilities (one equation)
+    pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error (one equation)
 
     @property
     def coupled(self) -> bool:
@@ -183,6 +184,12 @@ class RunResult:
                 "noise": self.stepwise.noise,
                 "seconds": self.stepwise.seconds,
             },
+            "pruning": None if self.pruning is None else {
+                "removed": self.pruning.removed,
+                "history": self.pruning.history.to_dict(orient="records"),
+                "noise": self.pruning.noise,
+                "seconds": self.pruning.seconds,
+            },
             "order_search": None if self.order_search is None else {
                 "best_order": self.order_search.best_order,
                 "table": records(self.order_search.table),
@@ -253,7 +260,7 @@ class RunResult:
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
         ]
-        for part in (self.stability, self.order_search, self.stepwise, self.diagnosis, self.refinement,
+        for part in (self.stability, self.order_search, self.stepwise, self.pruning, self.diagnosis, self.refinement,
                      self.simulation_refinement):
             if part is not None:
                 lines += [repr(part), ""]

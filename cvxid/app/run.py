@@ -42,7 +42,7 @@ from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
-from cvxid.identify.stepwise import stepwise_output_error
+from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import fit_percent
 from cvxid.model.input_delay import record_bound
@@ -71,6 +71,7 @@ def run(spec) -> RunResult:
             result = _identify(spec)
         _compare(result)
         _warn_confounded_gain(result)
+        _warn_delay_at_bound(result)
         _warn_implausible(result)
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
     result.seconds = time.perf_counter() - start
@@ -98,6 +99,32 @@ def _warn_confounded_gain(out: RunResult) -> None:
             f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}) are not identified separately; their "
             f"difference {name} - gain = {physical[name] - physical['gain']:.4g} is. Give the gain ([model.delay] "
             "gain = …), or remove [model.delay] if the loop has no delay", CvxidWarning, stacklevel=2)
+
+
+def _warn_delay_at_bound(out: RunResult) -> None:
+    r"""A fed-back delay estimated at an end of its search range, said aloud: at ``tau_max``
+    the true delay may be longer; at ``tau_min`` it may be shorter, and at 0 a damping can
+    stand in for a short delay (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), and the
+    other parameters' standard errors hold at that delay only."""
+    estimate = (out.tau or {}).get("estimate")
+    delay = next(iter(out.system.models.values())).spec.delay
+    if estimate is None or delay is None or not delay.exact:
+        return
+    tolerance = max(out.train.dt, 1e-3 * (delay.tau_max - delay.tau_min))
+    if estimate >= delay.tau_max - tolerance:
+        warnings.warn(
+            f"the delay tau = {estimate:.4g} s is at the top of its search range (tau_max = {delay.tau_max:g} s): the "
+            "true delay may be longer; raise [model.delay] tau_max", CvxidWarning, stacklevel=2)
+    elif estimate <= delay.tau_min + tolerance and delay.tau_min > 0:
+        warnings.warn(
+            f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
+            "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
+    elif estimate <= tolerance:
+        warnings.warn(
+            f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
+            "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
+            "other parameters' standard errors hold at tau = 0 only. Give the delay a floor ([model.delay] tau_min) "
+            "if the loop is known to be late, or a longer, richer record", CvxidWarning, stacklevel=2)
 
 
 def _warn_implausible(out: RunResult) -> None:
@@ -392,6 +419,7 @@ def _polish(out: RunResult):
         out.polish = polish(out.system, out.train, **COUPLED_POLISH)
     else:
         out.polish = polish(out.system, out.train)
+        _prune(out)
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None and not out.coupled:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
@@ -399,6 +427,24 @@ def _polish(out: RunResult):
         out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
     _delays_of_polish(out)
+
+
+def _prune(out: RunResult) -> None:
+    r"""``[fit] prune``: the terms the selector chose from the library, pruned by simulation
+    error after the polish (:func:`~cvxid.identify.stepwise.prune_by_simulation`).  Listed
+    terms are never pruned, nor the effects the diagnosis added (its rule already asked the
+    test record's errors), nor the linear ``x`` and ``x'``: a delay stands in for a damping
+    in the simulation error (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), so
+    only the equation's selection may drop them."""
+    if not out.spec.fit.prune or out.spec.fit.estimator not in SELECTING:
+        return
+    spec = out.polish.model.spec
+    kept = {spec.coordinate, spec.coordinate + "'"}
+    kept |= {step.term for step in out.refinement.steps} if out.refinement is not None else set()
+    removable = [n for n in spec.library.names if n not in spec.listed and n not in kept]
+    if removable:
+        out.pruning = prune_by_simulation(out.polish, out.train, removable)
+        out.polish = out.pruning.polish
 
 
 def _delays_of_polish(out: RunResult) -> None:

@@ -314,6 +314,8 @@ def load(
     ``samples = (first, end)`` then ``fraction = (start, end)`` keep a part of the record
     (before the check: its messages count the part's samples).
     """
+    outputs, inputs = _columns(outputs, "outputs"), _columns(inputs, "inputs")
+    velocities = _columns(velocities, "velocities") if velocities is not None else None
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:
@@ -338,11 +340,30 @@ def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str
                velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False,
                faults: str = "warn") -> Experiment:
     """An experiment from a pandas DataFrame, by column names (sensor check as :func:`load`)."""
+    outputs, inputs = _columns(outputs, "outputs"), _columns(inputs, "inputs")
+    velocities = _columns(velocities, "velocities") if velocities is not None else None
     columns = {str(c): frame[c].to_numpy() for c in frame.columns}
     return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults)
 
 
+def _columns(names, argument: str) -> dict[str, str]:
+    """``outputs``/``inputs``/``velocities`` as a mapping model name -> column: a mapping as
+    given, or a column name (or a list of them) that names itself in the model."""
+    if isinstance(names, str):
+        return {names: names}
+    if isinstance(names, Mapping):
+        return dict(names)
+    if isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names):
+        return {n: n for n in names}
+    raise CvxidError(f"{argument} names the file's columns: a column name ('x'), a list of them, or a mapping "
+                     f"{{model name: column}} ({{'x': 'x_measured'}}), got {names!r}")
+
+
 def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults) -> Experiment:
+    clash = sorted(set(outputs.values()) & set(inputs.values()))
+    if clash:
+        raise CvxidError(f"{source}: {what} '{clash[0]}' is both a measured output and an input; the input is the "
+                         "force or command applied to the system: name its own column (a spec's [data.*] input)")
     t = _pick(columns, time, what, source)
     signals = ({k: _pick(columns, v, what, source) for k, v in outputs.items()},
                {k: _pick(columns, v, what, source) for k, v in inputs.items()},

@@ -160,9 +160,11 @@ def _least_significant(terms: list[str], fit) -> list[str]:
 
 
 def _without(model: IdentifiedModel, term: str) -> IdentifiedModel:
-    """``model`` with ``term`` dropped and every other coefficient kept (a warm start)."""
+    """``model`` with ``term`` dropped and every other coefficient kept (a warm start; its
+    lambda and notes too)."""
     spec = model.spec.with_library(Library([t for t in model.spec.library if t.name != term]))
-    return IdentifiedModel(spec, {n: model.coefficients.get(n, 0.0) for n in spec.column_names}, tau=model.tau)
+    return IdentifiedModel(spec, {n: model.coefficients.get(n, 0.0) for n in spec.column_names}, model.lam,
+                           model.info, model.tau)
 
 
 def _trial(model: IdentifiedModel, experiment: Experiment, step: float, iterations: int = 30):
@@ -273,3 +275,60 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
     info = dict(final.model.info, selection="stepwise output error")
     chosen = IdentifiedModel(final.model.spec, final.model.coefficients, 0.0, info, final.model.tau)
     return Stepwise(chosen, pd.DataFrame(rows), sigma, time.perf_counter() - start, final)
+
+
+@dataclass(frozen=True)
+class Pruning:
+    """The backward half of the search run on a model selected by equation error and
+    polished: the terms it removed, each step's simulation error, and the pruned model
+    polished again (``polish``; the given one when nothing was removed)."""
+
+    history: pd.DataFrame  # step, action, term, rms
+    noise: float
+    seconds: float
+    polish: PolishResult
+
+    @property
+    def removed(self) -> list[str]:
+        return [row.term for row in self.history.itertuples() if row.action == "remove"]
+
+    def __repr__(self) -> str:
+        removed = ", ".join(self.removed) or "nothing"
+        lines = [f"Pruning by simulation error ({self.seconds:.1f} s, noise level {self.noise:.4g}): removed {removed}"]
+        lines += ["  " + line for line in self.history.to_string(index=False).splitlines()]
+        return "\n".join(lines)
+
+
+@one_blas_thread
+def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Sequence[str], step: float = 1e-3,
+                        tolerance: float = 0.005) -> Pruning:
+    r"""Drop the ``removable`` terms of a polished model that the simulation error does not
+    need: the backward steps of :func:`stepwise_output_error` (a term goes while :math:`J`
+    without it, the others refitted, stays within ``tolerance`` of :math:`\max(J, \hat\sigma)`),
+    from the polished fit refitted on the search's step; the pruned model is polished again
+    (its delay profiled).  A selection by equation error keeps terms that a velocity
+    estimated from noisy x makes look useful; their simulation error shows they are not."""
+    start = time.perf_counter()
+    model = polished.model
+    current = [n for n in model.spec.library.names if model.coefficients.get(n, 0.0) != 0.0]
+    sigma = noise_level(train.output(model.spec.coordinate))
+    rows = []
+    if any(n in current for n in removable):
+        step = max(step, train.dt)
+        spec = model.spec.with_library(Library([t for t in model.spec.library if t.name in current]))
+        fit, rms = _trial(IdentifiedModel(spec, model.coefficients, model.lam, model.info, model.tau), train, step)
+        if fit is not None:
+            rows.append({"step": 0, "action": "start", "term": ", ".join(current), "rms": rms})
+            kept = [n for n in current if n not in removable]
+            with Parallel(n_jobs=1) as pool:
+                fit, rms = _backward(pool, fit, rms, current, kept, train, step, (1 + tolerance) * sigma, tolerance,
+                                     rows)
+    if len(rows) > 1:
+        with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
+            warnings.simplefilter("ignore", CvxidWarning)
+            polished = polish(fit.model, train, coarse_step=step, initial=fit.initial)
+        rows.append({"step": len(rows), "action": "polish (delay profiled) at the sample step"
+                     if polished.profile is not None else "polish at the sample step", "term": "",
+                     "rms": polished.rms_after})
+    return Pruning(pd.DataFrame(rows, columns=["step", "action", "term", "rms"]), sigma,
+                   time.perf_counter() - start, polished)

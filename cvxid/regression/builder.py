@@ -111,10 +111,22 @@ class RegressionBuilder:
                     f"tau_max = {self.start:g} s (it needs at least twice that); lower "
                     "[model.delay] tau_max or use a longer record"
                 )
+            if exact and self.start < e.dt:
+                raise CvxidError(
+                    f"[model.delay] tau_max = {self.start:g} s is shorter than one sample of experiment '{e.name}' "
+                    f"(dt = {e.dt:g} s): no delay can be resolved; raise tau_max, or check the time column's units "
+                    "(seconds)"
+                )
             if np.ptp(e.input(model.input)) == 0:
                 raise CvxidError(
                     f"experiment '{e.name}': input '{model.input}' is constant, so it does not "
                     "excite the system; identification needs a varying input"
+                )
+            still = [c for c in model.coordinates if np.ptp(e.output(c)) == 0]
+            if still:
+                raise CvxidError(
+                    f"experiment '{e.name}': output '{still[0]}' is constant, so the record holds no motion to "
+                    "identify; check that the spec's [data] output names the measured position"
                 )
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)

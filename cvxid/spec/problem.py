@@ -147,6 +147,7 @@ class FitSettings:
     allow_large: bool = False  # jobs above MAX_SOLVES, builds above the memory available
     backend: str = "loky"  # where joblib's work runs (cvxid.parallel)
     scheduler: str | None = None  # a dask or ray cluster's address
+    prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
 
 
 @dataclass(frozen=True)
@@ -205,6 +206,12 @@ class ProblemSpec:
         if velocity is None and self.fit.velocity not in ESTIMATORS + ("measured", "auto"):
             velocity = self.fit.velocity  # [fit] velocity names a measured column
         first = self.coordinates[0]
+        try:
+            return self._load(which, table, where, inputs, velocity, first)
+        except CvxidError as exc:  # the file's own message, and the spec's table that named it
+            raise exc if str(exc).startswith("spec:") else CvxidError(f"spec: [{where}] {exc}") from None
+
+    def _load(self, which: str, table: Table, where: str, inputs: list[str], velocity, first: str) -> Experiment:
         return load(
             self.folder / _string(table, "file", where),
             time=None if "dt" in table else _string(table, "time", where, "t"),
@@ -239,7 +246,7 @@ MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "con
 SELECTORS = PATH_ESTIMATORS + ("stepwise_oe",)
 """One equation's ``[fit] estimator`` values: the path's selectors and the stepwise search."""
 FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "bootstrap", "orders", "n_jobs",
-            "refine", "window", "loss", "allow_large", "backend", "scheduler", "stability"}
+            "refine", "window", "loss", "allow_large", "backend", "scheduler", "stability", "prune"}
 
 
 def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
@@ -515,7 +522,13 @@ def _fit(table: Table) -> FitSettings:
         window=_window(table, where),
         loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
         allow_large=_bool(table, "allow_large", where, False),
+        prune=_bool(table, "prune", where, True),
     )
+    if "prune" in table and settings.prune and (settings.refine is None or estimator not in SELECTING):
+        missing = "refine = \"output_error\"" if settings.refine is None else \
+            f"an estimator that selects (lasso, adaptive_lasso, stlsq), not '{estimator}'"
+        raise CvxidError(f"spec: [{where}] prune removes selected terms the output-error polish does not need: it "
+                         f"needs {missing}; remove prune, or add it")
     solves = len(lambdas) * (settings.bootstrap.samples if settings.bootstrap else 1) * max(len(settings.orders), 1)
     if settings.velocity == "auto":
         solves *= 3
