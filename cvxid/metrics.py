@@ -21,10 +21,14 @@ SEGMENT = 4096
 
 
 def _spectrum(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
-    """Welch's power spectral density of ``y`` and its floor, the median of its upper half
-    (taken as white noise)."""
-    f, pxx = welch(y - np.mean(y), fs=fs, nperseg=min(y.size, SEGMENT))
-    return f, pxx, float(np.median(pxx[f.size // 2:]))
+    r"""Welch's power spectral density of ``y`` and its floor: the white noise's mean
+    density, from the median of the upper half (robust to a signal there) divided by a
+    white bin's median-to-mean ratio (:math:`\chi^2` with the bins' degrees of freedom:
+    ln 2 for one segment)."""
+    segment = min(y.size, SEGMENT)
+    f, pxx = welch(y - np.mean(y), fs=fs, nperseg=segment)
+    averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
+    return f, pxx, float(np.median(pxx[f.size // 2:]) / (chi2.median(averaged) / averaged))
 
 
 SIGNAL_DOMINATES = 3.0
@@ -35,17 +39,14 @@ not the noise, makes the third difference (a record sampled at a few times its b
 def noise_level(y: np.ndarray) -> float:
     """Standard deviation of white measurement noise, from the median absolute third
     difference (smooth signals contribute almost nothing to it at fine sampling); where that
-    exceeds ``SIGNAL_DOMINATES`` times the estimate from the spectrum's floor (the median of
-    its upper half, taken as white), from the floor (the Silverbox, 610 Hz: 4.8 mV by the
+    exceeds ``SIGNAL_DOMINATES`` times the estimate from the spectrum's floor (its upper
+    half taken as white, :func:`_spectrum`), from the floor (the Silverbox, 610 Hz: 4.8 mV by the
     third difference, 0.12 mV by the floor)."""
     y = np.asarray(y, float)
     d3 = np.diff(y, 3)
     differences = float(np.median(np.abs(d3)) / 0.6745 / np.sqrt(20.0))
     _, _, floor_density = _spectrum(y, 1.0)
-    segment = min(y.size, SEGMENT)
-    averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
-    median_to_mean = chi2.median(averaged) / averaged  # a white bin's median is below its mean (ln 2 for one segment)
-    floor = float(np.sqrt(0.5 * floor_density / median_to_mean))
+    floor = float(np.sqrt(0.5 * floor_density))
     return floor if differences > SIGNAL_DOMINATES * floor else differences
 
 
@@ -75,10 +76,12 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
 
 def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
     """The angular frequency below which ``share`` of the variance of ``y`` lies, above the
-    noise floor (the median of the upper half of the spectrum, taken as white noise).  The
-    floor is subtracted with its sign: above the signal's band the noise's bins scatter
-    about the floor and cancel in the sum (clipped at 0, their upper halves added up to more
-    than 5 % of a record whose noise is half its signal, and the edge ran to Nyquist)."""
+    noise floor (the white noise's mean density, :func:`_spectrum`).  The floor is
+    subtracted with its sign: above the signal's band the noise's bins scatter about their
+    mean and cancel in the sum (clipped at 0, their upper halves added up to more than 5 % of
+    a record whose noise is half its signal, and the edge ran to Nyquist; a floor read as
+    the bins' median, below their mean, left them a positive sum on records of one Welch
+    segment)."""
     f, pxx, floor = _spectrum(y, 1.0 / dt)
     cumulative = np.cumsum(pxx - floor)
     if cumulative[-1] <= 0:

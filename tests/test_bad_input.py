@@ -229,6 +229,14 @@ def test_load_takes_a_column_name_or_a_list_and_names_a_wrong_argument(tmp_path)
     assert np.array_equal(by_name.input("f"), np.cos(T))
     with pytest.raises(CvxidError, match=r"outputs names the file's columns: a column name \('x'\), a list"):
         load(tmp_path / "r.csv", "t", 3, "f")
+    np.savetxt(tmp_path / "v.csv", np.column_stack([T, np.sin(T), np.cos(T), np.cos(T)]), delimiter=",",
+               header="t,x,f,v", comments="")
+    measured = load(tmp_path / "v.csv", "t", "x", "f", velocities="v")  # a velocity column is the output's
+    assert np.array_equal(measured.velocities["x"], np.cos(T))
+    with pytest.raises(CvxidError, match=r"'x' is both a measured output and a measured velocity"):
+        load(tmp_path / "v.csv", "t", "x", "f", velocities="x")
+    with pytest.raises(CvxidError, match=r"velocities names one measured velocity column per output \(x\)"):
+        load(tmp_path / "v.csv", "t", "x", "f", velocities=["v", "f"])
 
 
 DELAYED = """name = "delayed"
@@ -260,22 +268,28 @@ def _delayed_record(tmp_path, rng, tau: float = 0.15, dt: float = 1e-3):
                header="t,x,f", comments="")
 
 
-def test_a_delay_at_the_top_of_its_range_is_a_warning(tmp_path, rng):
-    """The true delay 0.15 s searched up to 0.1 s: the estimate sits on tau_max and the
-    result says the delay may be longer; searched up to 0.3 s, no such warning."""
+@pytest.mark.parametrize("tau, bounds, said", [
+    (0.15, "tau_max = 0.1", "at the top of its search range (tau_max = 0.1 s): the true delay may be longer; raise"),
+    (0.15, "tau_min = 0.2\ntau_max = 0.4", "at the bottom of its search range (tau_min = 0.2 s): the true delay "
+                                          "may be shorter; lower"),
+    (0.0, "tau_max = 0.3", "is at 0, the bottom of its search range: the data show no delay, or another term "
+                           "stands in for it"),
+    (0.15, "tau_max = 0.3", None),
+])
+def test_a_delay_at_an_end_of_its_range_is_a_warning(tmp_path, rng, tau, bounds, said):
+    """The true delay 0.15 s searched up to 0.1 s, or from 0.2 s; a loop closed at once
+    (gain known); and, as a control, 0.15 s searched over [0, 0.3]: only the control is
+    silent."""
     import json
 
     from cvxid.app.cli import main
 
-    _delayed_record(tmp_path, rng)
-    said = {}
-    for tau_max in (0.1, 0.3):
-        (tmp_path / "spec.toml").write_text(DELAYED.format(tau_max=tau_max))
-        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / f"o{tau_max}")]) == 0
-        result = json.loads((tmp_path / f"o{tau_max}" / "result.json").read_text())
-        said[tau_max] = [w for w in result["warnings"] if "top of its search range" in w]
-    assert said[0.1] and "raise [model.delay] tau_max" in said[0.1][0], said
-    assert not said[0.3]
+    _delayed_record(tmp_path, rng, tau=tau)
+    (tmp_path / "spec.toml").write_text(DELAYED.format(tau_max=0.3).replace("tau_max = 0.3", bounds))
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    warnings = [w for w in json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+                if "search range" in w]
+    assert (warnings and said in warnings[0]) if said else not warnings, warnings
 
 
 def test_a_time_column_in_milliseconds_is_named(tmp_path, capsys, rng):

@@ -80,3 +80,24 @@ def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):
     assert rows["data (load or simulate the records)"] > 0 and rows["delay profile (convex)"] > 0
     assert rows["output-error polish (simulations)"] == 0 and rows["bootstrap"] == 0
     assert all(0 <= seconds <= whole for seconds in rows.values()), rows
+
+
+def test_the_path_figure_is_drawn_only_when_terms_were_selected(tmp_path):
+    """hidden_friction lists its terms (L1 weight 0): its lambda path is flat and is not
+    drawn; the same spec with an order-3 library to select from draws it."""
+    import tomllib
+
+    from cvxid.app.report import write_report
+    from cvxid.app.run import run
+    from cvxid.spec.load import parse_problem
+
+    from .conftest import ROOT
+
+    raw = tomllib.loads((ROOT / "problems" / "hidden_friction.toml").read_text())
+    raw.pop("diagnose")
+    raw["fit"] = {"estimator": "lasso"}
+    write_report(run(parse_problem(raw, ROOT / "problems")), tmp_path / "listed")
+    raw["model"]["library"] = {"order": 2, "cross": True}
+    write_report(run(parse_problem(raw, ROOT / "problems")), tmp_path / "selected")
+    assert not (tmp_path / "listed" / "path.png").exists() and (tmp_path / "listed" / "test_fit.png").is_file()
+    assert (tmp_path / "selected" / "path.png").is_file()

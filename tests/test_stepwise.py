@@ -113,6 +113,10 @@ def test_pruning_removes_the_terms_the_simulation_error_does_not_need():
     low, high = pruned.tau["interval"]
     assert low < 0.2 < high
     assert pruned.to_dict()["pruning"]["removed"] == pruned.pruning.removed
+    # the model keeps the whole library (the dropped terms at 0): the diagnosis's candidates
+    # and result.json's coefficients are the same with or without a pruning
+    assert pruned.model.spec.library.names == kept.model.spec.library.names
+    assert pruned.model.coefficients["x^3 x'"] == 0.0 and set(pruned.model.coefficients) == set(kept.model.coefficients)
 
 
 def test_pruning_needs_a_polish_and_a_selection():

@@ -84,7 +84,8 @@ def write_report(result, out) -> tuple[Path, str | None]:
     """Write ``result.json``, ``report.md``, ``model.json`` (the identified system, for
     :meth:`~cvxid.identified.IdentifiedSystem.load`; one equation also reads with
     :meth:`~cvxid.identified.IdentifiedModel.load`) and the figures (``test_fit``, and when
-    the run made them ``path``, ``delay_profile``, ``diagnosis``, ``refinement``,
+    the run made them ``path`` (when it selected: a path of listed terms alone is flat),
+    ``delay_profile``, ``diagnosis``, ``refinement``,
     ``orders``; when the one-equation diagnosis added an effect ``responses`` and
     ``residuals``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
     and what an earlier run had left there (:func:`earlier_run`), or None."""
@@ -98,7 +99,8 @@ def write_report(result, out) -> tuple[Path, str | None]:
     system = result.system
     added = not result.coupled and result.refinement is not None and bool(result.refinement.steps)
     plotters = {
-        "path": (lambda: path_figure(result.path, result.lam)) if result.path is not None else None,
+        "path": (lambda: path_figure(result.path, result.lam))
+        if result.path is not None and (result.path.problem.penalties > 0).any() else None,  # (flat without)
         "delay_profile": (lambda: delay_profile_figure(*system.profile, system.tau, system.info.get("tau_interval")))
         if system.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,

@@ -107,10 +107,11 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     stand in for a short delay (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), and the
     other parameters' standard errors hold at that delay only."""
     estimate = (out.tau or {}).get("estimate")
-    delay = next(iter(out.system.models.values())).spec.delay
+    spec = next(iter(out.system.models.values())).spec
+    delay = spec.delay
     if estimate is None or delay is None or not delay.exact:
         return
-    tolerance = max(out.train.dt, 1e-3 * (delay.tau_max - delay.tau_min))
+    tolerance = 1e-3 * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
     if estimate >= delay.tau_max - tolerance:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the top of its search range (tau_max = {delay.tau_max:g} s): the "
@@ -119,7 +120,8 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
-    elif estimate <= tolerance:
+    elif estimate <= tolerance and not (delay.gain is None and delay.coordinate + "'" * delay.derivative
+                                        in spec.library.names):  # (_warn_confounded_gain says it then)
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "

@@ -10,7 +10,7 @@ from __future__ import annotations
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Mapping
+from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
@@ -293,9 +293,9 @@ READERS = {
 def load(
     path,
     time: str | None,
-    outputs: Mapping[str, str],
-    inputs: Mapping[str, str],
-    velocities: Mapping[str, str] | None = None,
+    outputs: Mapping[str, str] | str | Sequence[str],
+    inputs: Mapping[str, str] | str | Sequence[str],
+    velocities: Mapping[str, str] | str | Sequence[str] | None = None,
     name: str | None = None,
     gaps: bool = False,
     faults: str = "warn",
@@ -307,15 +307,15 @@ def load(
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
 
     ``outputs``/``inputs``/``velocities`` map the model's names (``"x"``) to column or
-    variable names in the file; ``time = None`` with a sample step ``dt`` for a file without
+    variable names in the file (a name or a list of names: columns named as in the model;
+    velocities: one per output, in their order; :func:`_named`); ``time = None`` with a sample step ``dt`` for a file without
     a time column.  The outputs are checked for sensor faults (clipping, a
     frozen stretch, outlier samples; :mod:`cvxid.data.sensor`): ``faults = "warn"`` warns
     about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
     ``samples = (first, end)`` then ``fraction = (start, end)`` keep a part of the record
     (before the check: its messages count the part's samples).
     """
-    outputs, inputs = _columns(outputs, "outputs"), _columns(inputs, "inputs")
-    velocities = _columns(velocities, "velocities") if velocities is not None else None
+    outputs, inputs, velocities = _named(outputs, inputs, velocities)
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix not in READERS:
@@ -340,30 +340,45 @@ def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str
                velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False,
                faults: str = "warn") -> Experiment:
     """An experiment from a pandas DataFrame, by column names (sensor check as :func:`load`)."""
-    outputs, inputs = _columns(outputs, "outputs"), _columns(inputs, "inputs")
-    velocities = _columns(velocities, "velocities") if velocities is not None else None
+    outputs, inputs, velocities = _named(outputs, inputs, velocities)
     columns = {str(c): frame[c].to_numpy() for c in frame.columns}
     return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults)
 
 
-def _columns(names, argument: str) -> dict[str, str]:
-    """``outputs``/``inputs``/``velocities`` as a mapping model name -> column: a mapping as
-    given, or a column name (or a list of them) that names itself in the model."""
-    if isinstance(names, str):
-        return {names: names}
-    if isinstance(names, Mapping):
-        return dict(names)
-    if isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names):
-        return {n: n for n in names}
-    raise CvxidError(f"{argument} names the file's columns: a column name ('x'), a list of them, or a mapping "
-                     f"{{model name: column}} ({{'x': 'x_measured'}}), got {names!r}")
+def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
+    """``outputs``, ``inputs`` and ``velocities`` as mappings model name -> column.  Each may
+    be a mapping; outputs and inputs also a column name (or a list of them) that names
+    itself in the model; velocities, keyed by the coordinate they belong to, also a column
+    name (or a list) matched to the outputs in order."""
+    def columns(names, argument: str) -> dict[str, str]:
+        if isinstance(names, str):
+            return {names: names}
+        if isinstance(names, Mapping):
+            return dict(names)
+        if isinstance(names, (list, tuple)) and all(isinstance(n, str) for n in names):
+            return {n: n for n in names}
+        raise CvxidError(f"{argument} names the file's columns: a column name ('x'), a list of them, or a mapping "
+                         f"{{model name: column}} ({{'x': 'x_measured'}}), got {names!r}")
+
+    outputs, inputs = columns(outputs, "outputs"), columns(inputs, "inputs")
+    if velocities is None or isinstance(velocities, Mapping):
+        return outputs, inputs, None if velocities is None else dict(velocities)
+    listed = [velocities] if isinstance(velocities, str) else velocities
+    if not isinstance(listed, (list, tuple)) or len(listed) != len(outputs) or \
+            not all(isinstance(n, str) for n in listed):
+        raise CvxidError(f"velocities names one measured velocity column per output ({', '.join(outputs)}), in "
+                         f"their order, or maps each output to its column ({{'x': 'v'}}), got {velocities!r}")
+    return outputs, inputs, dict(zip(outputs, listed))
 
 
 def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults) -> Experiment:
-    clash = sorted(set(outputs.values()) & set(inputs.values()))
-    if clash:
-        raise CvxidError(f"{source}: {what} '{clash[0]}' is both a measured output and an input; the input is the "
-                         "force or command applied to the system: name its own column (a spec's [data.*] input)")
+    named = [("a measured output", outputs), ("an input", inputs), ("a measured velocity", velocities or {})]
+    for i, (first, a) in enumerate(named):
+        for second, b in named[i + 1:]:
+            clash = sorted(set(a.values()) & set(b.values()))
+            if clash:
+                raise CvxidError(f"{source}: {what} '{clash[0]}' is both {first} and {second}; each signal needs its "
+                                 "own column (a spec's [data.*] output, input, velocity)")
     t = _pick(columns, time, what, source)
     signals = ({k: _pick(columns, v, what, source) for k, v in outputs.items()},
                {k: _pick(columns, v, what, source) for k, v in inputs.items()},

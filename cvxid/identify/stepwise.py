@@ -304,10 +304,12 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
                         tolerance: float = 0.005) -> Pruning:
     r"""Drop the ``removable`` terms of a polished model that the simulation error does not
     need: the backward steps of :func:`stepwise_output_error` (a term goes while :math:`J`
-    without it, the others refitted, stays within ``tolerance`` of :math:`\max(J, \hat\sigma)`),
-    from the polished fit refitted on the search's step; the pruned model is polished again
-    (its delay profiled).  A selection by equation error keeps terms that a velocity
-    estimated from noisy x makes look useful; their simulation error shows they are not."""
+    without it, the others refitted, stays within ``tolerance`` of :math:`\max(J, \hat\sigma)`,
+    :math:`J` the error before that step), from the polished fit refitted on the search's
+    step; the pruned model is polished again (its delay profiled) and keeps the whole
+    library, the dropped terms at 0.  A selection by equation error keeps terms that a
+    velocity estimated from noisy x makes look useful; their simulation error shows they are
+    not."""
     start = time.perf_counter()
     model = polished.model
     current = [n for n in model.spec.library.names if model.coefficients.get(n, 0.0) != 0.0]
@@ -317,8 +319,9 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
         step = max(step, train.dt)
         spec = model.spec.with_library(Library([t for t in model.spec.library if t.name in current]))
         fit, rms = _trial(IdentifiedModel(spec, model.coefficients, model.lam, model.info, model.tau), train, step)
+        rows.append({"step": 0, "action": "start" if fit is not None else "start: its simulation diverged, nothing "
+                     "pruned", "term": ", ".join(current), "rms": rms})
         if fit is not None:
-            rows.append({"step": 0, "action": "start", "term": ", ".join(current), "rms": rms})
             kept = [n for n in current if n not in removable]
             with Parallel(n_jobs=1) as pool:
                 fit, rms = _backward(pool, fit, rms, current, kept, train, step, (1 + tolerance) * sigma, tolerance,
@@ -326,9 +329,13 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
     if len(rows) > 1:
         with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
             warnings.simplefilter("ignore", CvxidWarning)
-            polished = polish(fit.model, train, coarse_step=step, initial=fit.initial)
+            pruned = polish(fit.model, train, coarse_step=step, initial=fit.initial)
         rows.append({"step": len(rows), "action": "polish (delay profiled) at the sample step"
-                     if polished.profile is not None else "polish at the sample step", "term": "",
-                     "rms": polished.rms_after})
+                     if pruned.profile is not None else "polish at the sample step", "term": "",
+                     "rms": pruned.rms_after})
+        final = pruned.model  # back on the whole library: the diagnosis's candidates are what it lacks
+        whole = IdentifiedModel(model.spec, {n: final.coefficients.get(n, 0.0) for n in model.spec.column_names},
+                                final.lam, final.info, final.tau)
+        polished = replace(pruned, system=replace(pruned.system, models={model.spec.coordinate: whole}))
     return Pruning(pd.DataFrame(rows, columns=["step", "action", "term", "rms"]), sigma,
                    time.perf_counter() - start, polished)

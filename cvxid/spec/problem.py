@@ -525,10 +525,10 @@ def _fit(table: Table) -> FitSettings:
         prune=_bool(table, "prune", where, True),
     )
     if "prune" in table and settings.prune and (settings.refine is None or estimator not in SELECTING):
-        missing = "refine = \"output_error\"" if settings.refine is None else \
-            f"an estimator that selects (lasso, adaptive_lasso, stlsq), not '{estimator}'"
+        missing, fix = ("refine = \"output_error\"", "add it") if settings.refine is None else (
+            f"an estimator that selects (lasso, adaptive_lasso, stlsq), not '{estimator}'", "choose one")
         raise CvxidError(f"spec: [{where}] prune removes selected terms the output-error polish does not need: it "
-                         f"needs {missing}; remove prune, or add it")
+                         f"needs {missing}; remove prune, or {fix}")
     solves = len(lambdas) * (settings.bootstrap.samples if settings.bootstrap else 1) * max(len(settings.orders), 1)
     if settings.velocity == "auto":
         solves *= 3
