@@ -152,3 +152,32 @@ def test_a_csv_with_logger_jitter_runs_end_to_end(tmp_path):
         assert any("jitter" in w for w in result["warnings"]) == (name == "jittered")
     for key, value in coefficients["clean"].items():
         assert coefficients["jittered"][key] == pytest.approx(value, rel=1e-4, abs=1e-6), key
+
+
+def test_csv_with_semicolons_decimal_commas_tabs_or_a_units_row_reads_the_same(tmp_path):
+    """A spreadsheet's export: semicolons with decimal commas, tabs, or a row of units
+    under the header (skipped with a warning); each used to be an error that did not name
+    its cause ("no column named 't'; available: t;x;f", "not numeric ... 'm'")."""
+    import warnings
+
+    from cvxid import CvxidWarning
+    from cvxid.data.experiment import load
+
+    t = np.arange(200) * 0.01
+    x, f = np.sin(t), np.cos(3 * t)
+    rows = [f"{a:.6f},{b:.6f},{c:.6f}" for a, b, c in zip(t, x, f)]
+    variants = {
+        "comma.csv": "t,x,f\n" + "\n".join(rows),
+        "semicolon.csv": "t;x;f\n" + "\n".join(r.replace(",", ";").replace(".", ",") for r in rows),
+        "tab.csv": "t\tx\tf\n" + "\n".join(r.replace(",", "\t") for r in rows),
+        "units.csv": "t,x,f\ns,m,N\n" + "\n".join(rows),
+    }
+    for name, text in variants.items():
+        (tmp_path / name).write_text(text + "\n")
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            e = load(tmp_path / name, "t", "x", "f")
+        assert e.n == 200 and np.allclose(e.output("x"), x, atol=1e-6) and np.allclose(e.input("f"), f, atol=1e-6)
+        said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
+        assert any("(s, m, N) is text in every column; it was read as units and skipped" in m for m in said) == \
+            (name == "units.csv"), (name, said)

@@ -138,6 +138,25 @@ def test_the_command_refuses_a_spec_with_heldout_and_needs_one_without(tmp_path,
         main(["bench"])
 
 
+@pytest.mark.parametrize("argv, said", [
+    (["--heldout", "--long", "1e5"], "--heldout and --long are separate benchmarks: give one of them"),
+    (["hidden_friction", "--seeds", "3"], "--seeds and --noises are for cvxid bench --heldout and --accuracy"),
+    (["hidden_friction", "--keep", "k"], "--keep is for cvxid bench --heldout"),
+    (["--heldout", "--duration", "-5"], "--duration takes record seconds like 8 or 20,200, each at least 1"),
+    (["--heldout", "--noises", "-1"], "--noises takes noise levels like 0.01,0.001, each at least 0"),
+    (["--heldout", "--effects", "none,bogus"], "--effects: unknown hidden effect 'bogus'; one of: none, coulomb"),
+    (["--heldout", "--seeds", "1005:1000"], "--seeds 1005:1000 holds no seed"),
+    (["hidden_friction"], "'hidden_friction' lists its terms: bench a spec with [model.library] order"),
+    (["flexible_joint"], "'flexible_joint' is coupled"),
+])
+def test_bench_flags_that_would_be_ignored_or_fail_per_system_are_an_error_first(capsys, argv, said):
+    """Each used to run (minutes of the held-out benchmark with a flag ignored, an empty
+    table, an IndexError or the same error once per system) or to fail deep inside."""
+    assert main(["bench", *argv]) == 2
+    err = capsys.readouterr().err
+    assert said in err and len(err.strip().splitlines()) == 1, err
+
+
 TAU_TOLERANCE = 2.0
 """Percent, on 10 s records at noise 0.001 (two systems of the tuning range, true terms
 given, gain estimated).  Loose: the README reports a few hundredths of a percent at this

@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+import cvxid
 from cvxid.app.cli import main
 from cvxid.app.run import run
 from cvxid.errors import CvxidError
@@ -81,6 +82,9 @@ def test_files_of_both_earlier_schemas_still_load(tmp_path):
     loaded = IdentifiedSystem.load(tmp_path / "joint.json")
     test = result.test
     assert loaded.compare(test)["fit_percent"].to_dict() == pytest.approx(system.compare(test)["fit_percent"].to_dict())
+    with pytest.raises(CvxidError, match=r"compare takes one equation's model; this system has 2 coupled equations: "
+                                         r"use system.compare\(experiment\)"):
+        cvxid.compare(system, test)  # (the package's compare, for one equation; it used to raise AttributeError)
     single = system.models["theta"]
     (tmp_path / "one.json").write_text(json.dumps(single.to_dict()))
     assert json.loads((tmp_path / "one.json").read_text())["schema"] == "cvxid.identified/1"

@@ -63,6 +63,27 @@ def test_a_rerun_into_another_runs_folder_says_so(tmp_path, capsys):
     assert not [p for p in out.iterdir() if p.name.endswith(".partial")]
 
 
+def test_a_rerun_removes_the_earlier_runs_figures_and_a_foreign_result_is_refused(tmp_path, capsys):
+    """The earlier run's figures that this run does not draw go (they described another
+    model); a result.json cvxid did not write is refused before any work, untouched."""
+    import json
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "diagnosis.png").write_bytes(b"an earlier run's figure")
+    (out / "notes.png").write_bytes(b"the user's own")
+    (out / "result.json").write_text(json.dumps({"name": "earlier", "figures": {"diagnosis": "diagnosis.png"}}))
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(out)]) == 0
+    assert "replacing the files of an earlier run of 'earlier'" in capsys.readouterr().out
+    assert not (out / "diagnosis.png").exists() and (out / "notes.png").exists() and (out / "test_fit.png").exists()
+    foreign = tmp_path / "foreign"
+    foreign.mkdir()
+    (foreign / "result.json").write_text('{"accuracy": 0.93}')
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(foreign)]) == 2
+    assert "holds a result.json that cvxid did not write" in capsys.readouterr().err
+    assert (foreign / "result.json").read_text() == '{"accuracy": 0.93}' and len(list(foreign.iterdir())) == 1
+
+
 def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):
     """`cvxid run SPEC --profile`: a table of stages whose seconds lie within the run's; a
     stage the spec does not ask for (the polish) takes none."""

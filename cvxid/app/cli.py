@@ -8,6 +8,7 @@ there is never a Python traceback for it.
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 import warnings
 
@@ -79,9 +80,28 @@ def _problems(args) -> int:
     return 0
 
 
+HELDOUT_FLAGS = ("effects", "duration", "keep", "estimator", "selection", "stability", "prune", "known_gain",
+                 "systems")
+"""``cvxid bench`` flags that only the held-out benchmark reads (``--mode`` too, when not its default)."""
+
+
+def _check_bench_flags(args) -> None:
+    """One benchmark per call, and no flag it would ignore: a clear error instead."""
+    modes = [f"--{name}" for name in ("heldout", "long", "accuracy") if getattr(args, name)]
+    if len(modes) > 1:
+        raise CvxidError(f"{' and '.join(modes)} are separate benchmarks: give one of them")
+    given = [f"--{name.replace('_', '-')}" for name in HELDOUT_FLAGS if getattr(args, name)]
+    given += ["--mode"] if args.mode != "structure" else []
+    if given and not args.heldout:
+        raise CvxidError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for cvxid bench --heldout")
+    if (args.seeds or args.noises) and not (args.heldout or args.accuracy):
+        raise CvxidError("--seeds and --noises are for cvxid bench --heldout and --accuracy")
+
+
 def _bench(args) -> int:
     from cvxid.parallel import engine
 
+    _check_bench_flags(args)
     if args.long and (args.backend or args.scheduler):
         raise CvxidError("--long runs each record in a fresh process on this machine: drop --backend/--scheduler")
     with engine(args.backend or "loky", args.scheduler):
@@ -142,6 +162,17 @@ def _long(args) -> int:
     return 0
 
 
+def _numbers(text: str, flag: str, what: str, least: float) -> list[float]:
+    """A comma-separated list of finite numbers of at least ``least``, or a clear error."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise CvxidError(f"{flag} takes {what}, got '{text}'") from None
+    if not all(math.isfinite(v) and v >= least for v in values):
+        raise CvxidError(f"{flag} takes {what}, each at least {least:g}, got '{text}'")
+    return values
+
+
 def _seeds(text: str) -> list[int]:
     """``"1000:1010"`` (a range, end excluded), ``"3,7,8"`` or one seed."""
     try:
@@ -169,8 +200,14 @@ def _heldout(args) -> int:
     seeds = _seeds(args.seeds or "1000:1010")
     effects = tuple(args.effects.split(",")) if args.effects else \
         SELECTION_EFFECTS if args.mode.startswith("selection") else EFFECTS
-    noises = tuple(float(v) for v in args.noises.split(",")) if args.noises else (None,)
-    lengths = [float(v) for v in args.duration.split(",")] if args.duration else [None]
+    unknown = [e for e in effects if e not in EFFECTS]
+    if unknown:
+        raise CvxidError(f"--effects: unknown hidden effect '{unknown[0]}'; one of: {', '.join(EFFECTS)}")
+    noises = tuple(_numbers(args.noises, "--noises", "noise levels like 0.01,0.001", 0.0)) if args.noises else (None,)
+    lengths = _numbers(args.duration, "--duration", "record seconds like 8 or 20,200", 1.0) if args.duration \
+        else [None]
+    if not seeds:
+        raise CvxidError(f"--seeds {args.seeds} holds no seed: a range like 1000:1010 ends after its start")
     fit = {k: v for k, v in (("estimator", args.estimator), ("selection", args.selection)) if v}
     if args.stability:
         fit["stability"] = args.stability == "on"

@@ -54,17 +54,25 @@ def prepare_folder(out) -> Path:
         raise CvxidError(f"cannot create the output folder {out} ({exc.strerror}); choose another --out") from None
     if not os.access(out, os.W_OK | os.X_OK):
         raise CvxidError(f"cannot write into the output folder {out} (permission denied); choose another --out")
+    earlier_run(out)  # a result.json cvxid did not write is refused now, not after the run
     return out
 
 
-def earlier_run(out: Path) -> str | None:
-    """What an earlier run left in ``out``: its spec's name, or None when the folder holds
-    no ``result.json``."""
+def earlier_run(out: Path) -> dict | None:
+    """What an earlier run left in ``out``: its ``result.json`` (its ``name`` and the
+    ``figures`` it wrote), or None when the folder holds none.  A ``result.json`` that is
+    not a cvxid result is an error: cvxid replaces only its own files."""
+    path = out / "result.json"
+    if not path.exists():
+        return None
     try:
-        data = json.loads((out / "result.json").read_text())
+        data = json.loads(path.read_text())
     except (OSError, ValueError):
-        return None if not (out / "result.json").exists() else "an unreadable result.json"
-    return f"'{data.get('name', '?')}'" if isinstance(data, dict) else "an unreadable result.json"
+        data = None
+    if not (isinstance(data, dict) and isinstance(data.get("name"), str) and isinstance(data.get("figures"), dict)):
+        raise CvxidError(f"--out {out} holds a result.json that cvxid did not write (or cannot read); cvxid "
+                         "replaces only its own results: choose another --out, or move that file")
+    return data
 
 
 def write_atomically(path: Path, write) -> None:
@@ -94,7 +102,8 @@ def write_report(result, out) -> tuple[Path, str | None]:
     from cvxid.plots import delay_profile_figure, path_figure
 
     out = prepare_folder(out)
-    replaced = earlier_run(out)
+    earlier = earlier_run(out)
+    replaced = f"'{earlier['name']}'" if earlier else None
     data = result.to_dict()
     system = result.system
     added = not result.coupled and result.refinement is not None and bool(result.refinement.steps)
@@ -121,6 +130,9 @@ def write_report(result, out) -> tuple[Path, str | None]:
             plt.close(fig)
             figures[name] = f"{name}.png"
     data["figures"] = figures
+    for stale in set((earlier or {}).get("figures", {}).values()) - set(figures.values()):
+        if "/" not in stale and stale.endswith(".png"):  # the earlier run's figures this run did not draw
+            (out / stale).unlink(missing_ok=True)
     try:
         model = json.dumps(system.to_dict(), indent=2)  # reload with IdentifiedSystem.load (or IdentifiedModel.load)
         write_atomically(out / "model.json", lambda p: p.write_text(model))

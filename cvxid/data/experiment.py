@@ -256,13 +256,38 @@ def _pick(available: Mapping[str, np.ndarray], wanted: str, what: str, source: P
 
 
 def _csv_columns(path: Path) -> dict[str, np.ndarray]:
+    """The columns of a CSV file with a header row: separated by commas, or by semicolons
+    (then a decimal comma is read too) or tabs; a row of units under the header (text in
+    every column) is skipped with a warning."""
     import pandas as pd
 
-    try:
-        frame = pd.read_csv(path)
-    except Exception as exc:  # pandas raises many types for malformed files
-        raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
+    def read(**options):
+        try:
+            return pd.read_csv(path, **options)
+        except Exception as exc:  # pandas raises many types for malformed files
+            raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
+
+    options = {}
+    frame = read()
+    if frame.shape[1] == 1 and any(sep in str(frame.columns[0]) for sep in (";", "\t")):
+        options = {"sep": ";", "decimal": ","} if ";" in str(frame.columns[0]) else {"sep": "\t"}
+        frame = read(**options)
+    if len(frame) > 1 and not any(pd.api.types.is_numeric_dtype(frame[c]) for c in frame.columns):
+        first = [str(v) for v in frame.iloc[0]]
+        second = [str(v).replace(",", ".") if options.get("decimal") == "," else str(v) for v in frame.iloc[1]]
+        if not any(_numeric(v) for v in first) and all(_numeric(v) for v in second):
+            warnings.warn(f"{path}: the row under the header ({', '.join(first)}) is text in every column; it was "
+                          "read as units and skipped", CvxidWarning, stacklevel=3)
+            frame = read(skiprows=[1], **options)
     return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
+
+
+def _numeric(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True
 
 
 def _mat_columns(path: Path) -> dict[str, np.ndarray]:

@@ -124,7 +124,14 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     comparison covers the simulated samples only) from the state ``(x0, v0)`` when given,
     else the state ``initial`` names: ``"estimated"`` (least squares over the compared
     record, as MATLAB's ``compare`` does; the fit from the record's own start is kept
-    beside it) or ``"record"`` (the record's smoothed first state)."""
+    beside it) or ``"record"`` (the record's smoothed first state).  An identified system
+    of one equation is its model; a coupled one compares with its own
+    :meth:`~cvxid.identified.IdentifiedSystem.compare`."""
+    if isinstance(model, IdentifiedSystem):
+        if model.single is None:
+            raise CvxidError(f"compare takes one equation's model; this system has {len(model.models)} coupled "
+                             "equations: use system.compare(experiment), the fit of every coordinate")
+        model = model.single
     check_initial_state(initial)
     experiment, note = longest_stretch(experiment)
     y = experiment.output(model.spec.coordinate)

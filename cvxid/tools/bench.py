@@ -33,10 +33,11 @@ import numpy as np
 import pandas as pd
 
 from cvxid.app.run import order_search
-from cvxid.errors import CvxidWarning
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import Path
 from cvxid.identify.problem import SOLVER_SETTINGS, Problem
-from cvxid.regression.builder import build_regression
+from cvxid.identify.profile import profile_delay
+from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
@@ -104,13 +105,21 @@ def _sklearn(problem: Problem, lambdas) -> tuple[float | None, np.ndarray | None
 
 def benchmark(spec: ProblemSpec, order: int | None = None, naive_lambdas: int = 5, n_jobs: int = 2) -> dict:
     """Measure everything the module docstring lists; returns the figures."""
-    model = spec.model if order is None else replace(spec.model, library=spec.library(order))
     fit = spec.fit
     lambdas = np.sort(fit.lambdas)[::-1]
     velocity = fit.velocity if fit.velocity in ("observer", "savgol", "spline") else "measured"
-    train = build_regression(model, spec.experiment("train"), velocity)
+    if spec.system.single is None or spec.polynomial is None:
+        raise CvxidError(f"cvxid bench SPEC times the lambda path and the paper's Algorithm 1 (orders 1-6) of one "
+                         f"equation's polynomial library; '{spec.name}' "
+                         + ("is coupled" if spec.system.single is None else "lists its terms")
+                         + ": bench a spec with [model.library] order = ... (duffing_delay, paper_duffing_data)")
+    model = spec.model if order is None else replace(spec.model, library=spec.library(order))
+    builder = RegressionBuilder(model, spec.experiment("train"), velocity)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)
+        exact = model.delay is not None and model.delay.exact  # the path at the profiled delay
+        train = builder.at(profile_delay(builder, nonnegative=model.nonnegative).estimate if exact else None)
+
         def ours_path():
             problem = Problem.from_regression(train, model.nonnegative, "CLARABEL")
             return problem, Path.compute(problem, lambdas, debias=False)
