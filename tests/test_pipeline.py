@@ -255,3 +255,22 @@ def test_a_failing_solver_is_replaced_and_the_run_says_so_in_result_json(tmp_pat
     data = json.loads((out / "result.json").read_text())
     assert any("CLARABEL: injected failure" in w and "answered instead" in w for w in data["warnings"])
     assert data["physical"]["k1"] == pytest.approx(4.0, rel=0.01) and data["physical"]["m"] == pytest.approx(1.0, rel=0.01)
+
+
+def test_the_order_search_of_an_exact_delay_profiles_it_first():
+    """order_search (and cvxid bench SPEC's Algorithm 1) built its regressions without a
+    delay and failed on an exact delay ("needs a delay tau"); it now profiles the delay on
+    the training record and scores every order there (hidden_friction's records, orders
+    1-3 of the polynomial library: a finite test error for each)."""
+    import tomllib
+
+    from cvxid.app.run import order_search
+    from cvxid.spec.load import parse_problem
+
+    raw = tomllib.loads((ROOT / "problems" / "hidden_friction.toml").read_text())
+    raw.pop("diagnose")
+    raw["model"]["library"] = {"order": 3, "cross": False}
+    raw["fit"] = {"estimator": "lasso"}
+    search = order_search(parse_problem(raw, ROOT / "problems"), orders=range(1, 4), show_progress=False)
+    assert list(search.table.index) == [1, 2, 3] and search.best_order in (1, 2, 3)
+    assert search.table["test_mse"].notna().all()

@@ -40,7 +40,7 @@ from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
-from cvxid.identify.profile import profile_input_delay, with_input_tau
+from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
@@ -49,7 +49,7 @@ from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
 from cvxid.progress import progress
-from cvxid.regression.builder import SystemBuilder, build_regression
+from cvxid.regression.builder import RegressionBuilder, SystemBuilder, build_regression
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import usable_seconds
@@ -492,15 +492,20 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
     """The paper's Algorithm 1 on ``spec``'s polynomial library: every order in ``orders``
     scored on the test experiment, with its fit settings; ``samples`` bootstraps per order
     (none: a single path each), or ``boot`` settings.  ``train``/``test`` regressions at
-    the highest order may be passed to skip building them."""
+    the highest order may be passed to skip building them; built here, an exact delay's
+    are at the delay profiled on the training record (every term of the highest order)."""
     if "test" not in spec.data and test is None:
         raise CvxidError("the order search scores orders on the test experiment: add [data.test]")
     fit = spec.fit
     orders = sorted({int(o) for o in orders})
     top = replace(spec.model, library=spec.library(orders[-1]))
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
-    train = train if train is not None else build_regression(top, spec.experiment("train"), velocity)
-    test = test if test is not None else build_regression(top, spec.experiment("test"), velocity)
+    if train is None or test is None:
+        builder = RegressionBuilder(top, spec.experiment("train"), velocity)
+        exact = top.delay is not None and top.delay.exact
+        tau = profile_delay(builder, nonnegative=top.nonnegative).estimate if exact else None
+        train = train if train is not None else builder.at(tau)
+        test = test if test is not None else build_regression(top, spec.experiment("test"), velocity, tau)
     if boot is None and samples:
         boot = BootstrapSettings(samples, fraction, seed, n_jobs)
     return search_orders(top, spec.library, train, test, orders, fit.lambdas, fit.estimator, fit.debias,
