@@ -18,3 +18,8 @@ class SolverFailure(CvxidError):
 
 class CvxidWarning(UserWarning):
     """Something the user should see: an inaccurate solve, an ill-posed estimate, …"""
+
+
+class EquationErrorDelayWarning(CvxidWarning):
+    """The equation-error (Taylor) estimate of the delay is not one; a later output-error
+    polish that estimates the delay supersedes it, and the run then drops the warning."""

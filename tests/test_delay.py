@@ -184,3 +184,27 @@ def test_a_record_sampled_faster_than_the_profile_step_gets_a_profile_interval()
     se = result.polish.standard_errors["tau"]
     assert low <= 0.2 <= high
     assert (high - low) / 2 < 3 * 1.96 * se, (low, high, se)
+
+
+def test_a_taylor_delay_warning_from_inside_the_polish_is_not_the_runs():
+    """duffing_delay.toml selected by the lasso with the output-error polish (noise seed 1):
+    the polish's delay profile rewrites the Taylor columns at every delay of its grid, and
+    near tau = 0 they give no positive delay: "the Taylor delay coefficients have the wrong
+    sign ...; tau is reported as 0" used to reach the result beside tau = 0.199.  A delay
+    the polish estimates supersedes every equation-error (Taylor) reading of it."""
+    import tomllib
+
+    from cvxid.app.run import run
+    from cvxid.errors import EquationErrorDelayWarning
+    from cvxid.spec.load import parse_problem
+
+    from .conftest import ROOT
+
+    raw = tomllib.loads((ROOT / "problems" / "duffing_delay.toml").read_text())
+    raw["fit"] = {"estimator": "lasso", "velocity": "savgol", "refine": "output_error"}
+    polished = run(parse_problem(raw, ROOT / "problems"))
+    assert polished.tau["estimate"] == pytest.approx(0.2, rel=0.01)
+    assert not any("wrong sign for a positive delay" in w for w in polished.warnings), polished.warnings
+    delay = DelayedFeedback(gain=2.0, taylor_order=3)
+    with pytest.warns(EquationErrorDelayWarning, match="wrong sign for a positive delay; tau is reported as 0"):
+        assert delay.estimate_tau({1: -1.0}) == 0.0  # x''s share is gain * tau > 0: a negative one has no tau

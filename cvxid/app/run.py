@@ -32,7 +32,7 @@ from cvxid.diagnosis.equation import (
     k_step_samples,
     refine,
 )
-from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
@@ -73,7 +73,9 @@ def run(spec) -> RunResult:
         _warn_confounded_gain(result)
         _warn_delay_at_bound(result)
         _warn_implausible(result)
-    result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+    polished = (result.tau or {}).get("method") == "output_error"  # its delay supersedes the equation error's
+    result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)
+                                         and not (polished and issubclass(w.category, EquationErrorDelayWarning))))
     result.seconds = time.perf_counter() - start
     return result
 

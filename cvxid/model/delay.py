@@ -22,7 +22,7 @@ from math import factorial
 import numpy as np
 from scipy.optimize import least_squares
 
-from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.errors import CvxidError, EquationErrorDelayWarning
 from cvxid.model.terms import Derivative
 
 METHODS = ("taylor", "exact")
@@ -137,7 +137,7 @@ class DelayedFeedback:
         if not guesses:
             warnings.warn(
                 "the Taylor delay coefficients have the wrong sign for a positive delay; "
-                "tau is reported as 0", CvxidWarning, stacklevel=2,
+                "tau is reported as 0", EquationErrorDelayWarning, stacklevel=2,
             )
             return 0.0
         orders = np.array(list(pure))
