@@ -64,3 +64,33 @@ def test_an_unreachable_scheduler_is_a_clear_error():
         with pytest.raises(CvxidError, match="cannot reach the dask scheduler at 'tcp://127.0.0.1:9'"):
             with engine("dask", "tcp://127.0.0.1:9"):
                 pass
+
+
+def test_a_sigterm_stops_the_command_and_its_worker_processes():
+    """``kill`` (SIGTERM) of a held-out benchmark running two joblib workers: the command
+    stops as on Ctrl-C (exit 130) and its workers end; before, the command did not exit
+    within a minute and its workers ran on at full CPU."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import psutil  # (with the test extra: dask.distributed needs it)
+    command = [sys.executable, "-m", "cvxid.app.cli", "bench", "--heldout", "--seeds", "0:6", "--effects", "none",
+               "--noises", "0.01", "--duration", "8", "--quiet"]
+    process = subprocess.Popen(command, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        parent, workers, start = psutil.Process(process.pid), [], time.time()
+        while len(workers) < 2 and time.time() - start < 60:
+            time.sleep(0.5)
+            workers = parent.children(recursive=True)
+        time.sleep(2)  # the workers at work
+        workers = parent.children(recursive=True)
+        assert workers, "no worker process started"
+        process.send_signal(signal.SIGTERM)
+        _, err = process.communicate(timeout=60)
+    finally:
+        process.kill()
+    assert process.returncode == 130 and "cvxid: interrupted" in err
+    gone, alive = psutil.wait_procs(workers, timeout=20)
+    assert not [p for p in alive if p.status() != psutil.STATUS_ZOMBIE], alive

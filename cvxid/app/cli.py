@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import math
+import signal
 import sys
+import threading
 import warnings
 
 from cvxid import __version__
@@ -319,6 +321,7 @@ def main(argv=None) -> int:
         parser.error("bench needs a SPEC (or --heldout, or --long)")
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
+    previous = _stop_on_sigterm()
     try:
         return {"run": _run, "bench": _bench, "problems": _problems, "init": _init}[args.command](args)
     except CvxidError as exc:
@@ -329,6 +332,22 @@ def main(argv=None) -> int:
         return 130
     except BrokenPipeError:  # output piped into head, less, …
         return 0
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+def _stop_on_sigterm():
+    """A SIGTERM (``kill``, a scheduler's timeout) stops the command as Ctrl-C does: joblib
+    then ends its worker processes, which a plain termination left running.  Returns the
+    handler it replaced (None off the main thread, where signals cannot be set)."""
+    if threading.current_thread() is not threading.main_thread():
+        return None
+
+    def interrupted(signum, frame):
+        raise KeyboardInterrupt
+
+    return signal.signal(signal.SIGTERM, interrupted)
 
 
 if __name__ == "__main__":  # pragma: no cover
