@@ -40,9 +40,9 @@ from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
-from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
+from cvxid.identify.profile import profile_input_delay, profiled_tau, with_input_tau
 from cvxid.identify.problem import Problem
-from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
+from cvxid.identify.stepwise import linear_terms, prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import fit_percent
 from cvxid.model.input_delay import record_bound
@@ -89,10 +89,8 @@ def _warn_confounded_gain(out: RunResult) -> None:
         return
     for model in out.system.models.values():
         spec = model.spec
-        if spec.delay is None or spec.delay.gain is not None:
-            continue
-        signal = spec.delay.coordinate + "'" * spec.delay.derivative
-        if signal not in {t.name for t in spec.library}:
+        signal = _confounded_signal(spec)
+        if signal is None:
             continue
         name, physical = spec.parameter_name(signal), model.physical
         warnings.warn(
@@ -101,6 +99,15 @@ def _warn_confounded_gain(out: RunResult) -> None:
             f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}) are not identified separately; their "
             f"difference {name} - gain = {physical[name] - physical['gain']:.4g} is. Give the gain ([model.delay] "
             "gain = …), or remove [model.delay] if the loop has no delay", CvxidWarning, stacklevel=2)
+
+
+def _confounded_signal(spec) -> str | None:
+    r"""The fed-back signal (``x``) when its gain is estimated and it is a library column
+    too: at :math:`\tau = 0` the two are one column.  None otherwise."""
+    if spec.delay is None or spec.delay.gain is not None:
+        return None
+    signal = spec.delay.coordinate + "'" * spec.delay.derivative
+    return signal if signal in spec.library.names else None
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
@@ -122,8 +129,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
-    elif estimate <= tolerance and not (delay.gain is None and delay.coordinate + "'" * delay.derivative
-                                        in spec.library.names):  # (_warn_confounded_gain says it then)
+    elif estimate <= tolerance and _confounded_signal(spec) is None:  # (else _warn_confounded_gain says it)
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
@@ -443,7 +449,7 @@ def _prune(out: RunResult) -> None:
     if not out.spec.fit.prune or out.spec.fit.estimator not in SELECTING:
         return
     spec = out.polish.model.spec
-    kept = {spec.coordinate, spec.coordinate + "'"}
+    kept = set(linear_terms(spec))
     kept |= {step.term for step in out.refinement.steps} if out.refinement is not None else set()
     removable = [n for n in spec.library.names if n not in spec.listed and n not in kept]
     if removable:
@@ -504,8 +510,7 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if train is None or test is None:
         builder = RegressionBuilder(top, spec.experiment("train"), velocity)
-        exact = top.delay is not None and top.delay.exact
-        tau = profile_delay(builder, nonnegative=top.nonnegative).estimate if exact else None
+        tau = profiled_tau(builder)
         train = train if train is not None else builder.at(tau)
         test = test if test is not None else build_regression(top, spec.experiment("test"), velocity, tau)
     if boot is None and samples:

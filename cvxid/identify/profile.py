@@ -57,6 +57,16 @@ def effective_rows(residual: np.ndarray) -> float:
     return float(max(1.0, n / (1 + 2 * acf[1:stop].sum())))
 
 
+def profiled_tau(builder) -> float | None:
+    """The delay at which to build ``builder``'s regression when nothing has chosen one
+    yet: for an exact delay the profile's estimate over every column, else None (a Taylor
+    delay, or none, needs no delay to build)."""
+    delay = builder.delay
+    if delay is None or not delay.exact:
+        return None
+    return profile_delay(builder, nonnegative=builder.model.nonnegative).estimate
+
+
 def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level: float = 0.95, model=None,
                   ties=()) -> DelayProfile:
     """Profile the least-squares optimal value over the delay.

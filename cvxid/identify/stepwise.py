@@ -103,6 +103,24 @@ RANKING = 8
 one is then converged on the step itself)."""
 
 
+def linear_terms(spec: ModelSpec) -> tuple[str, str]:
+    """The linear stiffness and damping terms of ``spec``'s equation (``x``, ``x'``): the
+    stepwise search's default base, and never pruned (a delay stands in for a damping in
+    the simulation error)."""
+    return spec.coordinate, spec.coordinate + "'"
+
+
+def _polished(fit, train: Experiment, step: float, rows: list[dict]) -> PolishResult:
+    """The search's last fit polished (its delay profiled over the range, then every
+    parameter at the sample step), the step recorded in ``rows``."""
+    with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
+        warnings.simplefilter("ignore", CvxidWarning)
+        final = polish(fit.model, train, coarse_step=step, initial=fit.initial)
+    action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
+    rows.append({"step": len(rows), "action": action, "term": "", "rms": final.rms_after})
+    return final
+
+
 def _start(spec: ModelSpec, regression: Regression, terms: Sequence[str], tau: float | None) -> IdentifiedModel:
     """The equation-error least-squares fit of ``spec`` restricted to ``terms``, started
     at the delay ``tau`` (the regression's own for an exact delay; for a Taylor delay the
@@ -238,9 +256,8 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
     (default: the library's linear terms, e.g. ``x`` and ``x'``)."""
     start = time.perf_counter()
     names = spec.library.names
-    linear = [spec.coordinate, spec.coordinate + "'"]
     if base is None:
-        base = [n for n in linear if n in names]
+        base = [n for n in linear_terms(spec) if n in names]
     unknown = set(base) - set(names)
     if unknown:
         raise CvxidError(f"stepwise base term(s) {', '.join(sorted(unknown))} are not in the library")
@@ -267,11 +284,7 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
             current.append(name)
             rows.append({"step": len(rows), "action": "add", "term": name, "rms": rms})
         fit, rms = _backward(pool, fit, rms, current, base, train, step, (1 + tolerance) * sigma, tolerance, rows)
-    with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
-        warnings.simplefilter("ignore", CvxidWarning)
-        final = polish(fit.model, train, coarse_step=step, initial=fit.initial)
-    action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
-    rows.append({"step": len(rows), "action": action, "term": "", "rms": final.rms_after})
+    final = _polished(fit, train, step, rows)
     info = dict(final.model.info, selection="stepwise output error")
     chosen = IdentifiedModel(final.model.spec, final.model.coefficients, 0.0, info, final.model.tau)
     return Stepwise(chosen, pd.DataFrame(rows), sigma, time.perf_counter() - start, final)
@@ -327,12 +340,7 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
                 fit, rms = _backward(pool, fit, rms, current, kept, train, step, (1 + tolerance) * sigma, tolerance,
                                      rows)
     if len(rows) > 1:
-        with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
-            warnings.simplefilter("ignore", CvxidWarning)
-            pruned = polish(fit.model, train, coarse_step=step, initial=fit.initial)
-        rows.append({"step": len(rows), "action": "polish (delay profiled) at the sample step"
-                     if pruned.profile is not None else "polish at the sample step", "term": "",
-                     "rms": pruned.rms_after})
+        pruned = _polished(fit, train, step, rows)
         final = pruned.model  # back on the whole library: the diagnosis's candidates are what it lacks
         whole = IdentifiedModel(model.spec, {n: final.coefficients.get(n, 0.0) for n in model.spec.column_names},
                                 final.lam, final.info, final.tau)

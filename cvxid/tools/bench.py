@@ -36,7 +36,7 @@ from cvxid.app.run import order_search
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import Path
 from cvxid.identify.problem import SOLVER_SETTINGS, Problem
-from cvxid.identify.profile import profile_delay
+from cvxid.identify.profile import profiled_tau
 from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
@@ -117,8 +117,7 @@ def benchmark(spec: ProblemSpec, order: int | None = None, naive_lambdas: int = 
     builder = RegressionBuilder(model, spec.experiment("train"), velocity)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)
-        exact = model.delay is not None and model.delay.exact  # the path at the profiled delay
-        train = builder.at(profile_delay(builder, nonnegative=model.nonnegative).estimate if exact else None)
+        train = builder.at(profiled_tau(builder))  # an exact delay: the path at the profiled delay
 
         def ours_path():
             problem = Problem.from_regression(train, model.nonnegative, "CLARABEL")
