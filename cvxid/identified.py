@@ -119,9 +119,13 @@ class IdentifiedModel:
     def simulate(self, experiment: Experiment, x0: float | None = None, v0: float | None = None,
                  history: str | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Free-run simulation under the experiment's measured input, from the state
-        ``(x0, v0)`` at its start (estimated from the data by default).  With the measured
-        history (:mod:`cvxid.regression.history`) it starts at :math:`t_0 + \\tau_{\\max}`;
-        the samples before are NaN."""
+        ``(x0, v0)`` at its start (by default the record's smoothed state there,
+        :meth:`initial_state`; :func:`cvxid.compare` fits the start to the whole record
+        instead, and its ``initial_state`` passed here reproduces its free run).  With the measured
+        history (:mod:`cvxid.regression.history`) it starts at :math:`t_0 + \\tau_{\\max}`
+        (the first sample whose delayed past is measured), so ``(x0, v0)`` is the state
+        there and the samples before are NaN; ``history="zero"`` or ``"initial"`` starts at
+        :math:`t_0` with an assumed past."""
         if x0 is None or v0 is None:
             guess = self.initial_state(experiment, history)
             x0, v0 = guess[0] if x0 is None else x0, guess[1] if v0 is None else v0
@@ -195,6 +199,8 @@ class IdentifiedModel:
                 "names": dict(spec.names),
                 "orders": list(spec.orders),
                 "input_delay": None if spec.input_delay is None else spec.input_delay.as_dict(),
+                "listed": list(spec.listed),
+                "keep_linear": spec.keep_linear,
             },
             "coefficients": {k: float(v) for k, v in self.coefficients.items()},
             "lambda": float(self.lam),
@@ -226,6 +232,8 @@ class IdentifiedModel:
                 delay=delay, nonnegative=tuple(m["nonnegative"]), names=dict(m["names"]),
                 orders=tuple(None if o is None else int(o) for o in m["orders"]), others=others,
                 input_delay=None if m.get("input_delay") is None else InputDelay.from_dict(m["input_delay"]),
+                # (files written before these keys: every term a candidate, as then)
+                listed=tuple(str(n) for n in m.get("listed", ())), keep_linear=bool(m.get("keep_linear", False)),
             )
             coefficients = {str(k): float(v) for k, v in data["coefficients"].items()}
             tau = None if data["tau"] is None else float(data["tau"])

@@ -84,7 +84,16 @@ def test_identically_zero_target_is_named():
         ("[model]\n[data.train]\nfile = '/etc/passwd'\n", "unknown data format"),
         ("[model]\n[data.train]\nfile = 'x.csv'\n[fit]\nlambdas = { min = 1, max = 0.1 }\n", "larger than max"),
         ("[model.library]\norder = 'three'\n[data.train]\nfile = 'x.csv'\n", "must be a number"),
-        ('[model]\n[data.train]\nfile = "x.csv"\n[diagnose]\ncandidates = ["os.system"]\n', "'os.system' is not allowed"),
+        ('[model]\n[data.train]\nfile = "x.csv"\n[data.test]\nfile = "x.csv"\n[diagnose]\ncandidates = ["os.system"]\n',
+         "'os.system' is not allowed"),
+        # outside check, 2026-11-25: each was accepted, and gave a wrong model or did nothing, silently
+        ("[model]\ninertia = false\n[data.train]\nfile = 'x.csv'\n", r"inertia = false needs the known mass: add mass"),
+        ("[model]\nmass = 0.3\n[data.train]\nfile = 'x.csv'\n", r"mass is the known mass of inertia = false; remove"),
+        ("[model.library]\norder = 3\nterms = ['x']\n[data.train]\nfile = 'x.csv'\n",
+         r"gives terms and order: a terms list, or an order's polynomial library"),
+        ("[model.library]\nterms = []\n[data.train]\nfile = 'x.csv'\n", r"terms is empty: list the terms"),
+        ("[model]\n[data.train]\nfile = 'x.csv'\n[diagnose]\nrefine = true\n",
+         r"\[diagnose\] compares the models on a test record: add \[data.test\]"),
     ],
 )
 def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):
@@ -216,6 +225,32 @@ def test_one_column_as_output_and_input_is_refused(tmp_path):
                comments="")
     with pytest.raises(CvxidError, match="column 'x' is both a measured output and an input"):
         load(tmp_path / "r.csv", "t", {"x": "x"}, {"f": "x"})
+
+
+def test_the_time_column_as_a_signal_is_refused(tmp_path):
+    """Outside check: output = "t" ran to a mass of 9e13 and a fit of 0.4 %, exit 0."""
+    from cvxid.data.experiment import load
+
+    np.savetxt(tmp_path / "r.csv", np.column_stack([T, np.sin(T), np.cos(T)]), delimiter=",", header="t,x,f",
+               comments="")
+    with pytest.raises(CvxidError, match="column 't' is both the time and a measured output"):
+        load(tmp_path / "r.csv", "t", {"x": "t"}, {"f": "f"})
+
+
+def test_a_misspelt_velocity_estimator_lists_the_estimators(tmp_path, capsys, rng):
+    _delayed_record(tmp_path, rng)
+    err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3).replace('estimator = "lstsq"', 'velocity = "savgool"'))
+    assert "[fit] velocity 'savgool' is neither an estimator (observer, savgol, spline" in err, err
+
+
+def test_a_misspelt_velocity_estimator_on_simulated_data_is_an_error(tmp_path, capsys):
+    """It used to read the simulator's own velocity, silently (a velocity that is not an
+    estimator names a measured column, and a simulation measures it)."""
+    from .conftest import TRAIN_SIMULATED
+
+    err = cli_error(tmp_path, capsys, 'name = "v"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.4, "x" = 6.0 }\n'
+                    + TRAIN_SIMULATED + '\n[model.library]\nterms = ["x", "x\'"]\n[fit]\nvelocity = "savgool"\n')
+    assert "[fit] velocity 'savgool' is neither an estimator" in err and "[data.train] is simulated" in err, err
 
 
 def test_load_takes_a_column_name_or_a_list_and_names_a_wrong_argument(tmp_path):

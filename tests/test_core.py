@@ -126,10 +126,11 @@ def test_measured_history_needs_the_past():
 
 def test_listed_terms_are_estimated_not_selected_away(rng):
     """With the terms listed, the lasso's largest lambda keeps them (weight 0); with
-    ``select = true`` the same lambda drops them."""
+    ``select = true`` the same lambda drops them.  The linear x and x' are kept unlisted
+    too, unless ``keep_linear`` is false."""
     e = _oscillator(10.0, rng)
-    for listed, kept in ((("x'", "x"), True), ((), False)):
-        spec = ModelSpec(Library([parse_term("x'"), parse_term("x")]), listed=listed)
+    for listed, keep_linear, kept in ((("x'", "x"), False, True), ((), False, False), ((), True, True)):
+        spec = ModelSpec(Library([parse_term("x'"), parse_term("x")]), listed=listed, keep_linear=keep_linear)
         problem = Problem.from_regression(RegressionBuilder(spec, e).at(None))
         fit = Path.compute(problem, [1e2]).fits[0]
         assert bool(np.all(fit.coefficients[1:] != 0)) is kept

@@ -135,6 +135,20 @@ def test_a_start_outside_the_bounds_is_projected_and_said():
     assert fit.parameters["m"] > 0 and 0 <= fit.parameters["tau"] <= model().delay.tau_max
 
 
+def test_a_delay_interval_stays_within_the_delays_searched():
+    """Outside check: ``polish(model, train, grid=0).interval("tau")`` gave (0, 18.1) for a
+    search range of [0, 0.5] (a standard error far larger than the range): a delay's
+    interval is clipped to its bounds, as the input delay's was."""
+    from dataclasses import replace
+
+    exp = record(4, 0.001, duration=3.0)
+    start = {"x''": 1.0, **{n: TRUE[n] for n in TERMS}}
+    fit = polish(IdentifiedModel(model(), start, tau=TRUE["tau"]), exp, grid=0, final=False,
+                 max_iterations=3)
+    loose = replace(fit, standard_errors=dict(fit.standard_errors, tau=100.0))
+    assert loose.interval("tau") == (0.0, model().delay.tau_max)
+
+
 def test_feedback_without_delay_is_identified_with_a_zero_delay(tmp_path):
     """A loop closed without delay, identified by a user who allowed one (gain unknown):
     the delay's interval lies in [0, tau_max] and covers 0 (the polish used to report 1e-10
@@ -208,3 +222,23 @@ def test_a_taylor_delay_warning_from_inside_the_polish_is_not_the_runs():
     delay = DelayedFeedback(gain=2.0, taylor_order=3)
     with pytest.warns(EquationErrorDelayWarning, match="wrong sign for a positive delay; tau is reported as 0"):
         assert delay.estimate_tau({1: -1.0}) == 0.0  # x''s share is gain * tau > 0: a negative one has no tau
+
+
+def test_an_interval_of_a_parameter_named_negated_is_in_its_sign(tmp_path):
+    """Review: ``k = "-x"`` printed k -6.0 with the interval 6.0 … 6.0 (the coefficient's):
+    the interval is the physical parameter's, around its estimate."""
+    import json
+
+    from cvxid.app.cli import main
+
+    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+
+    text = ('name = "negated"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.4, "x" = 6.0 }\n'
+            + TRAIN_SIMULATED + "\n" + TEST_SIMULATED
+            + '\n[model.library]\nterms = ["x", "x\'"]\n[model.names]\nk = "-x"\n'
+              '[fit]\nestimator = "lstsq"\nrefine = "output_error"\n')
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    low, high = result["polish"]["intervals"]["k"]
+    assert result["physical"]["k"] == pytest.approx(-6.0, rel=1e-3) and low < result["physical"]["k"] < high < 0

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 from matplotlib import pyplot as plt
 
-from cvxid import CvxidError
+from cvxid import CvxidError, CvxidWarning
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.equation import (
     Diagnosis,
@@ -242,3 +242,26 @@ def test_compare_estimates_the_start_a_noisy_record_hides():
     assert estimated.fit_percent == pytest.approx(estimated.ceiling_percent, abs=0.3)
     with pytest.raises(CvxidError, match="initial must be one of estimated, record"):
         compare(true, test, initial="zero")
+
+
+def test_an_added_effect_the_polish_sets_to_zero_is_said():
+    """Outside check: the refinement table listed an added x'^3 that the output-error polish
+    held at its sign constraint's bound (0), and the final model lacked it without a word.
+    hidden_friction's added friction, set to 0 as that polish set the cubic damping: the run
+    says so (and does not when the friction stays)."""
+    import warnings
+
+    from cvxid.app.run import _warn_added_then_zero, run
+
+    from .conftest import ROOT
+
+    out = run(ROOT / "problems" / "hidden_friction.toml")
+    assert [step.term for step in out.refinement.steps] == ["sign(x')"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        _warn_added_then_zero(out)  # the friction stays: nothing to say
+    model = out.polish.model
+    zeroed = replace(model, coefficients=dict(model.coefficients, **{"sign(x')": 0.0}))
+    out.polish = replace(out.polish, system=replace(out.polish.system, models={"x": zeroed}))
+    with pytest.warns(CvxidWarning, match=r"the diagnosis added sign\(x'\), and the output-error polish set it to 0"):
+        _warn_added_then_zero(out)

@@ -92,9 +92,14 @@ def test_structure_from_noisy_x_meets_the_foundation_criterion(monkeypatch, tmp_
     table = pd.read_csv(tmp_path / "structure_from_noisy_x.csv").set_index("estimator")
     stepwise, stlsq = table.loc["stepwise_oe"], table.loc["stlsq"]
     assert bool(stepwise["true support"]) and not bool(stlsq["true support"])
-    # with an exact delay the lasso's two spurious terms go by simulation error (16/16 seeds so)
-    assert not table.loc["exact delay, lasso + polish, no pruning", "true support"]
-    assert table.loc["exact delay, lasso + polish + pruning", "true support"]
+    # the convex path (lasso, polish, pruning) finds it with the spec's Taylor delay; with an exact
+    # delay, the linear terms kept (the default), this seed's lasso picks x^3 x' and x x'^3 for
+    # x^2 x' and the pruning, which only removes, takes away the other three spurious terms (15/16
+    # seeds reach the support, 16/16 with x and x' candidates: docs/benchmarks.md)
+    assert table.loc["lasso + polish + pruning", "true support"]
+    extra = {name: set(table.loc[name, "extra"].split()) for name in
+             ("exact delay, lasso + polish, no pruning", "exact delay, lasso + polish + pruning")}
+    assert extra["exact delay, lasso + polish + pruning"] < extra["exact delay, lasso + polish, no pruning"]
     for name, tolerance in {"m": 0.2, "k1": 0.2, "k3": 0.5, "c2": 0.5, "c3": 0.6, "c1": 1.5, "tau": 1.0}.items():
         assert abs(stepwise[f"{name} %"]) < tolerance, name
 
@@ -156,3 +161,12 @@ def test_fast_sampled_records_get_delay_intervals_of_the_standard_errors_width(m
     row = pd.read_csv(tmp_path / "fast_sampled_intervals.csv").iloc[0]
     assert bool(row["covers"]) and row["low"] > 0.1
     assert row["half-width %"] < 3 * row["1.96 se %"], row.to_dict()
+
+
+def test_parameter_intervals_story(monkeypatch, tmp_path, capsys):
+    # tuning seed 2, no hidden effect, the gain estimated: no Wald interval covers its truth,
+    # every profile hull does (the same fit; tests/test_heldout.py has the warning)
+    out = run_example("parameter_intervals.py", monkeypatch, tmp_path, capsys, SEEDS="2:3", EFFECTS="none")
+    row = pd.read_csv(tmp_path / "parameter_intervals.csv").iloc[0]
+    assert row["Wald covers %"] <= 25 and row["profile covers %"] == 100 and row["width ratio"] > 1
+    assert "every parameter covered on 0 % and 100 % of systems" in out

@@ -87,7 +87,7 @@ def test_the_written_spec_loads_with_the_true_terms(tmp_path):
     assert spec.model.delay.exact and spec.model.delay.gain is None
     assert spec.model.delay.tau_min <= TAU_RANGE[0] and spec.model.delay.tau_max >= TAU_RANGE[1]
     assert spec.model.nonnegative == ("x''",) and spec.fit.refine == "output_error" and spec.diagnose is None
-    assert spec.truth.physical == pytest.approx({k: v for k, v in o.truth.items() if k != "gain"})
+    assert spec.truth.physical == pytest.approx(o.truth)  # (the gain too: the model estimates it)
     train = spec.experiment("train")
     assert train.time[0] == 0.0 and train.duration == pytest.approx(6.0)
     assert np.std(train.output("x") - o.simulate("train")[1]) == pytest.approx(0.01, rel=0.05)  # the noise
@@ -357,9 +357,34 @@ def test_the_delay_profile_threshold_counts_the_input_noise(inflation):
 
     n_eff, curvature, tau = 1000.0, 50.0, 0.15
     taus = np.linspace(0.05, 0.25, 2001)
-    points = {float(t): (float(np.sqrt(1.0 + curvature * (t - tau) ** 2)), None) for t in taus}
-    best = SimpleNamespace(parameters={"tau": tau}, effective_rows=n_eff, rms_after=1.0,
+    points = {float(t): (float(np.sqrt(1.0 + curvature * (t - tau) ** 2)),
+                         SimpleNamespace(parameters={"tau": float(t), "k": 6.0 + 10.0 * (t - tau)})) for t in taus}
+    best = SimpleNamespace(parameters={"tau": tau, "k": 6.0}, effective_rows=n_eff, rms_after=1.0,
                            input_noise_inflation=inflation)
-    low, high = _interval(points, best).interval
+    profile = _interval(points, best)
+    low, high = profile.interval
     half = np.sqrt(inflation * chi2.ppf(0.95, 1) / n_eff / curvature)
     assert low == pytest.approx(tau - half, rel=1e-4) and high == pytest.approx(tau + half, rel=1e-4)
+    # a parameter that trades with the delay: its refitted values over the kept delays
+    assert profile.ranges["k"] == pytest.approx((6.0 - 10 * half, 6.0 + 10 * half), abs=1e-3)
+
+
+def test_intervals_walk_the_valley_of_a_free_gain(tmp_path):
+    """Tuning seed 2, the gain estimated: the record does not separate the gain from the
+    stiffness (the delay's profile spans most of its range), the local standard errors see
+    one point of that valley and none of the four Wald intervals covered its truth; each
+    interval now hulls the parameter's refitted values along the delay's profile and all
+    four cover, and the run says which combination is determined."""
+    oscillator = draw(2, "none", 0.01, 8.0)
+    out = run(write(oscillator, tmp_path, "structure", known_gain=False))
+    polish = out.polish
+    truth = {k: v for k, v in oscillator.truth.items() if k in polish.parameters and k != "tau"}
+    assert set(truth) == {"m", "x", "x'", "gain"}
+    wald = [abs(polish.parameters[k] - v) <= 1.96 * polish.standard_errors[k] for k, v in truth.items()]
+    assert not any(wald), wald  # (what the intervals were)
+    for name, value in truth.items():
+        low, high = polish.interval(name)
+        assert low <= value <= high, (name, value, low, high)
+    said = [w for w in out.warnings if "not identified separately" in w or "not determined apart" in w]
+    assert len(said) == 1 and "x - gain" in said[0], out.warnings
+    assert not any("the data do not determine x" in w for w in out.warnings), out.warnings  # (not "remove x")

@@ -33,6 +33,9 @@ def test_json_round_trip_simulates_identically(model, tmp_path):
     assert np.array_equal(a, b, equal_nan=True)
     assert again.equation() == model.equation()
     assert "pickle" not in path.read_text()
+    # what is estimated and what selected comes back too (a refit or a diagnosis reads it)
+    assert again.spec.listed == model.spec.listed and again.spec.keep_linear == model.spec.keep_linear
+    assert [c.penalty for c in again.spec.columns] == [c.penalty for c in model.spec.columns]
 
 
 @pytest.mark.parametrize(

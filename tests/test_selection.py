@@ -151,3 +151,22 @@ def test_the_diagnosis_selects_the_library_anew_beside_the_effect_it_adds(tmp_pa
     assert stand_in in chosen and chosen != set(o.terms)
     assert [s.added for s in result.refinement.steps] == [effect]
     assert final == set(o.terms)
+
+
+def test_the_linear_stiffness_and_damping_are_kept_and_a_delay_cannot_stand_in(tmp_path):
+    """Tuning seed 4 with Coulomb friction, noise 0.01, 18 candidates: with x' a candidate
+    the selection dropped the damping, the delay stood in for it (b x(t - tau) = b x - b
+    tau x' + ...: tau 97 % off) and two velocity terms joined; kept (the default), the
+    true support and the delay within 1 %.  ``keep_linear = false`` makes them candidates."""
+    o = draw(4, "coulomb", 0.01, 8.0)
+    path = write(o, tmp_path, mode="selection", known_gain=True)
+    spec = load_problem(path)
+    penalties = {c.name: c.penalty for c in spec.model.columns}
+    assert penalties["x"] == penalties["x'"] == 0.0 and penalties["x^3"] == penalties["sign(x')"] == 1.0
+    result = run(spec)
+    kept = {n for n, c in result.model.coefficients.items() if c != 0.0} & set(selection_library())
+    assert kept == set(o.terms)
+    assert result.model.physical["tau"] == pytest.approx(o.tau, rel=0.01)
+    text = path.read_text().replace("[model.library]\n", "[model.library]\nkeep_linear = false\n")
+    path.write_text(text)
+    assert {c.name: c.penalty for c in load_problem(path).model.columns}["x'"] == 1.0

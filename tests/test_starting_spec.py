@@ -9,6 +9,7 @@ from cvxid import CvxidError
 from cvxid.app.cli import main
 from cvxid.app.starting_spec import detect_columns
 from cvxid.spec.load import load_problem
+from cvxid.tools.heldout import draw
 
 from .test_sensor import SIMULATED, spec_text
 
@@ -54,14 +55,23 @@ def test_columns_found_by_their_shape_when_their_names_say_nothing(rng):
     rough = np.sign(np.sin(3.1 * t)) + 0.3 * rng.standard_normal(t.size)
     columns = detect_columns({"c": rough, "a": t, "b": smooth})
     assert (columns.time, columns.output, columns.input) == ("a", "b", "c")
-    assert "the smoother signal" in columns.why and columns.dt == pytest.approx(0.01)
+    assert "the lower spectrum" in columns.why and columns.dt == pytest.approx(0.01)
+
+
+def test_a_noisy_measured_position_is_the_output_beside_a_clean_command():
+    """Outside check: the noise level picked the clean command (its noise is nothing beside
+    its spread) as the output; the spectrum above the noise floor picks the position."""
+    t, x, _, f = draw(1, noise=0.0, duration=20.0).simulate("train")
+    noisy = x + 0.01 * np.random.default_rng(3).standard_normal(x.size)
+    columns = detect_columns({"time": t, "ch1": f, "ch2": noisy})
+    assert (columns.output, columns.input) == ("ch2", "ch1")
 
 
 def test_a_file_without_time_takes_dt_and_a_clear_error_otherwise(tmp_path, capsys):
     record = simulated_record()
     np.savez(tmp_path / "disk.npz", th=record.output("x"), u=record.input("f"))
     assert main(["init", str(tmp_path / "disk.npz"), "-o", str(tmp_path / "a.toml")]) == 2
-    assert "no time column found among th, u: name it with --time, or give the sample step with --dt" in \
+    assert "no time column found (numeric columns: th, u): name it with --time, or give the sample step with --dt" in \
         capsys.readouterr().err
     assert main(["init", str(tmp_path / "disk.npz"), "-o", str(tmp_path / "a.toml"), "--dt", "0.001"]) == 0
     spec = load_problem(tmp_path / "a.toml")
@@ -113,3 +123,26 @@ def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, heade
     table = spec.data["train"]
     assert (table["time"], *table["output"].values(), *table["input"].values()) == chosen
     assert np.allclose(spec.experiment("train").output(spec.model.coordinate)[:5], record.output("x")[:5])
+
+
+@pytest.mark.parametrize("damage, said", [
+    (lambda rows: rows[:8], "only 6 samples; at least 20 are needed"),  # (80 % of 8 trains)
+    (lambda rows: np.vstack([rows[:300], rows[299:]]), "time is not strictly increasing at sample 300"),
+    (lambda rows: rows[:0], "the file has 0 data rows"),
+    (lambda rows: rows[:1], "the file has 1 data row: nothing to identify"),
+])
+def test_init_refuses_a_record_cvxid_run_would_refuse(tmp_path, capsys, damage, said):
+    """Outside check: init wrote a spec it said "runs as written" for a file that cvxid run
+    then refused; now it reads the records as the run will and writes nothing."""
+    t = np.arange(2000) * 1e-3
+    rows = damage(np.column_stack([t, np.sin(3 * t), np.cos(7 * t)]))
+    np.savetxt(tmp_path / "r.csv", rows, delimiter=",", header="t,x,f", comments="")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert said in capsys.readouterr().err and not (tmp_path / "r.toml").exists()
+
+
+def test_init_names_a_text_column(tmp_path, capsys):
+    (tmp_path / "r.csv").write_text("t,x,f\n" + "".join(f"{i * 0.01},{'abc' if i % 2 else i},{i}\n"
+                                                          for i in range(100)))
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert "not numeric (text, or mostly empty): x" in capsys.readouterr().err

@@ -83,14 +83,19 @@ class RunResult:
         standard errors of a coupled run)."""
         truth = self.spec.truth.physical if self.spec.truth else None
         if not self.coupled:
-            return self.model.table(truth)
-        frame = pd.DataFrame({"estimate": self.physical})
-        if truth is not None:
-            frame["truth"] = pd.Series(truth).reindex(frame.index)
-            frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
+            frame = self.model.table(truth)
+        else:
+            frame = pd.DataFrame({"estimate": self.physical})
+            if truth is not None:
+                frame["truth"] = pd.Series(truth).reindex(frame.index)
+                frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         if self.polish is not None:
-            se = {self._physical_name(k): v for k, v in self.polish.standard_errors.items()}
-            frame["std error"] = pd.Series(se).reindex(frame.index)
+            names = {k: self._physical_name(k) for k in self.polish.parameters}
+            frame["std error"] = pd.Series({names[k]: v for k, v in self.polish.standard_errors.items()}) \
+                .reindex(frame.index)
+            bounds = {names[k]: self.polish.physical_interval(k) for k in self.polish.parameters}
+            frame["95 % low"] = pd.Series({k: v[0] for k, v in bounds.items()}).reindex(frame.index)
+            frame["95 % high"] = pd.Series({k: v[1] for k, v in bounds.items()}).reindex(frame.index)
         return frame
 
     def _physical_name(self, column: str) -> str:
@@ -137,6 +142,7 @@ class RunResult:
                 "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
                 "standard_errors": self.polish.standard_errors,
+                "intervals": {name: list(self.polish.physical_interval(name)) for name in self.polish.parameters},
                 "seconds": self.polish.seconds,
             },
         }

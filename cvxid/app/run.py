@@ -42,7 +42,7 @@ from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, profiled_tau, with_input_tau
 from cvxid.identify.problem import Problem
-from cvxid.identify.stepwise import linear_terms, prune_by_simulation, stepwise_output_error
+from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import fit_percent
 from cvxid.model.input_delay import record_bound
@@ -81,33 +81,57 @@ def run(spec) -> RunResult:
 
 
 def _warn_confounded_gain(out: RunResult) -> None:
-    r"""An estimated feedback gain whose delay may be 0 is not identified: at
-    :math:`\tau = 0` the feedback :math:`b\,x(t-\tau)` is the library's own column
-    :math:`x`, and only the difference of their coefficients is."""
+    r"""An estimated feedback gain the record does not separate from the coefficient of
+    its own signal, said aloud with the combination that is determined:
+
+    * the delay's 95 % interval reaches 0: at :math:`\tau = 0` the feedback
+      :math:`b\,x(t-\tau)` is the library's own column :math:`x`;
+    * or the gain's 95 % interval (the profile's projection, :meth:`PolishResult.interval`)
+      is wider than the gain itself: with :math:`\omega\tau` small,
+      :math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`, and the gain, the stiffness,
+      the damping and the delay trade along a valley of the simulation error."""
     interval = (out.tau or {}).get("interval")
-    if not interval or interval[0] > 0:
-        return
     for model in out.system.models.values():
         spec = model.spec
-        signal = _confounded_signal(spec)
+        signal = spec.confounded_signal
         if signal is None:
             continue
         name, physical = spec.parameter_name(signal), model.physical
-        warnings.warn(
-            f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
-            f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
-            f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}) are not identified separately; their "
-            f"difference {name} - gain = {physical[name] - physical['gain']:.4g} is. Give the gain ([model.delay] "
-            "gain = …), or remove [model.delay] if the loop has no delay", CvxidWarning, stacklevel=2)
+        determined = f"their difference {name} - gain = {physical[name] - physical['gain']:.4g} is"
+        if interval and interval[0] <= 0:
+            warnings.warn(
+                f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
+                f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
+                f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
+                f"separately; {determined}. Give the gain ([model.delay] gain = …), or remove [model.delay] if the "
+                "loop has no delay", CvxidWarning, stacklevel=2)
+        elif out.polish is not None and _trading(out.polish):
+            low, high = out.polish.interval("gain")
+            k_range = (f"{name} ({physical[name]:.4g}, 95 % interval " + " … ".join(
+                f"{v:.4g}" for v in out.polish.physical_interval(name)) + ")") if name in out.polish.parameters \
+                else f"{name} (dropped)"
+            warnings.warn(
+                f"the feedback gain ({physical['gain']:.4g}, 95 % interval {low:.4g} … {high:.4g}) is not "
+                f"determined apart from {k_range}: over the delay's interval they "
+                f"trade, with the damping (b x(t - tau) = b x - b tau x' + ...); {determined}. Give the gain "
+                "([model.delay] gain = …) if it is known, or a record whose forcing reaches higher frequencies",
+                CvxidWarning, stacklevel=2)
 
 
-def _confounded_signal(spec) -> str | None:
-    r"""The fed-back signal (``x``) when its gain is estimated and it is a library column
-    too: at :math:`\tau = 0` the two are one column.  None otherwise."""
-    if spec.delay is None or spec.delay.gain is not None:
-        return None
-    signal = spec.delay.coordinate + "'" * spec.delay.derivative
-    return signal if signal in spec.library.names else None
+def _trading(polish) -> tuple[str, ...]:
+    r"""The parameters an estimated feedback gain trades with, the coefficients of the
+    linear ``x`` and ``x'`` (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), when
+    the gain's 95 % interval is wider than the gain itself or the delay's reaches 0; ()
+    otherwise.  Their own intervals are wide for that reason, not because their terms do
+    not belong."""
+    spec = next(iter(polish.system.models.values())).spec
+    if spec.confounded_signal is None or "gain" not in polish.parameters:
+        return ()
+    low, high = polish.interval("gain")
+    at_zero = "tau" in polish.parameters and polish.interval("tau")[0] <= 0
+    if high - low <= abs(polish.parameters["gain"]) and not at_zero:
+        return ()
+    return tuple(name for name in map(spec.parameter_name, spec.linear_terms) if name in polish.parameters)
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
@@ -129,7 +153,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
-    elif estimate <= tolerance and _confounded_signal(spec) is None:  # (else _warn_confounded_gain says it)
+    elif estimate <= tolerance and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
@@ -173,13 +197,15 @@ def _warn_implausible(out: RunResult) -> None:
 def _warn_undetermined(polish) -> None:
     """Coefficients whose output-error 95 % interval contains 0: the data do not show their
     terms (the delay is left to :func:`_warn_confounded_gain`)."""
-    loose = []
+    trading = _trading(polish)
+    loose, said = [], ("tau", "tau_u", *(("gain", *trading) if trading else ()))  # (_warn_confounded_gain's)
     for name, value in polish.parameters.items():
-        se = polish.standard_errors.get(name, np.nan)
-        if name in ("tau", "tau_u") or name in polish.states:
+        if name in said or name in polish.states:
             continue
-        if np.isfinite(se) and abs(value) < 1.96 * se:
-            loose.append(f"{name} ({value:.3g} ± {1.96 * se:.2g})")
+        low, high = polish.physical_interval(name)
+        if low <= 0 <= high:
+            value = -value if polish.negated(name) else value
+            loose.append(f"{name} ({value:.3g}, 95 % interval {low:.3g} … {high:.3g})")
     if loose:
         warnings.warn(
             f"the data do not determine {', '.join(loose)}: each 95 % interval contains 0, so these terms may not "
@@ -385,10 +411,6 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     coupled: :func:`~cvxid.diagnosis.coupled.refine_joint`), on the run's own transformed data."""
     settings, window = spec.diagnose, rows.window
     steps = settings.max_steps if settings.refine else 0
-    if out.test is None:
-        if out.coupled:
-            raise CvxidError("[diagnose] scores effects on the test data: add [data.test]")
-        return
     if out.coupled:
         out.refinement = refine_joint(out.system, out.train, out.test, settings.candidates,
                                       steps, velocity, window, (rows, test_rows))
@@ -437,6 +459,24 @@ def _polish(out: RunResult):
         out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
     _delays_of_polish(out)
+    _warn_added_then_zero(out)
+
+
+def _warn_added_then_zero(out: RunResult) -> None:
+    """An effect the diagnosis added that the output-error polish set to 0 (held at its
+    sign constraint's bound): the refinement table lists it, the final model lacks it, and
+    the run says why."""
+    if out.refinement is None or out.coupled:
+        return
+    model = out.polish.model
+    zero = [step.term for step in out.refinement.steps  # (a delay's step changes the delay, not a term)
+            if step.term in model.spec.library.names and model.coefficients.get(step.term, 0.0) == 0.0]
+    if zero:
+        it = "it" if len(zero) == 1 else "them"
+        warnings.warn(
+            f"the diagnosis added {', '.join(zero)}, and the output-error polish set {it} to 0 (at the sign "
+            f"constraint's bound): the simulation error does not want {it}, so the final model leaves {it} out",
+            CvxidWarning, stacklevel=2)
 
 
 def _prune(out: RunResult) -> None:
@@ -449,7 +489,7 @@ def _prune(out: RunResult) -> None:
     if not out.spec.fit.prune or out.spec.fit.estimator not in SELECTING:
         return
     spec = out.polish.model.spec
-    kept = set(linear_terms(spec))
+    kept = set(spec.linear_terms)
     kept |= {step.term for step in out.refinement.steps} if out.refinement is not None else set()
     removable = [n for n in spec.library.names if n not in spec.listed and n not in kept]
     if removable:
@@ -526,6 +566,8 @@ def refine_spec(spec: ProblemSpec | str | FilePath, **settings):
 
     if not isinstance(spec, ProblemSpec):
         spec = load_problem(spec)
+    if "test" not in spec.data:
+        raise CvxidError("the diagnosis compares the models on a test record: add [data.test] to the spec")
     current = spec.diagnose or DiagnoseSettings()
     spec = replace(spec, diagnose=replace(current, refine=True, **settings))
     return run(spec).refinement

@@ -2,7 +2,8 @@
 
 It reads the file (``.csv``, ``.mat``, ``.npz``), finds the time, output and input columns
 (by their names, else by their shape: the time is the increasing column with even steps,
-the output the smoother of the two others, as a mechanical system filters its input) or
+the output the one of the two others whose spectrum above its noise floor sits lower, as a
+mechanical system filters its input: :func:`spectral_centroid`) or
 takes them from the options, and writes a spec that runs as written: a linear model
 ``m x'' + c x' + k x = u + b x(t - tau)`` with an exact delay of unknown gain, the
 diagnosis on, the output-error polish on (intervals for every parameter), and comments
@@ -14,14 +15,17 @@ from __future__ import annotations
 import json
 import os
 import re
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from cvxid.data.experiment import READERS
-from cvxid.errors import CvxidError
-from cvxid.metrics import noise_level
+from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.spec.load import parse_problem
+from cvxid.spec.toml import tomllib
+from scipy.signal import welch
 
 TIME_NAMES = ("t", "time", "times", "timestamp", "seconds", "sec", "s")
 INPUT_NAMES = ("u", "f", "force", "input", "voltage", "volt", "torque", "command", "cmd", "current", "drive")
@@ -71,14 +75,41 @@ def _named(names, wanted) -> str | None:
     return None
 
 
+def spectral_centroid(values: np.ndarray) -> float:
+    r"""The power-weighted mean frequency (cycles per sample) of ``values``' spectrum above
+    its noise floor,
+
+    .. math:: \bar f = \frac{\sum_f f\,(P(f) - 4P_0)_+}{\sum_f (P(f) - 4P_0)_+},
+
+    :math:`P` Welch's estimate, :math:`P_0` its median over the upper half of the band (white
+    measurement noise).  Unlike a noise level it does not take a noisy measured position for
+    the rougher signal beside a clean command: on 40 random delayed oscillators (20 s, noise
+    0.01 or 0.001 on the position, the force clean or noisy) the output's is the lower on 36,
+    the noise level's ratio to the spread on none (the forces are larger numbers)."""
+    finite = values[np.isfinite(values)]
+    freq, power = welch(finite - finite.mean(), nperseg=min(finite.size, 4096))
+    signal = np.clip(power - 4 * np.median(power[freq > freq[-1] / 2]), 0.0, None)
+    return float(np.sum(freq * signal) / np.sum(signal)) if signal.sum() > 0 else np.inf
+
+
+def _listing(numeric: dict, dropped: list[str]) -> str:
+    """The file's numeric columns, and those that are not (text, or mostly empty)."""
+    text = f"numeric columns: {', '.join(sorted(numeric)) or 'none'}"
+    return text + (f"; not numeric (text, or mostly empty): {', '.join(dropped)}" if dropped else "")
+
+
 def detect_columns(columns: dict, time: str | None = None, output: str | None = None, input: str | None = None,
                    dt: float | None = None) -> Columns:
     """The time, output and input columns (see the module docstring)."""
+    rows = max((np.size(v) for v in columns.values()), default=0)
+    if rows < 2:
+        raise CvxidError(f"the file has {rows} data row{'s' if rows != 1 else ''}: nothing to identify")
     numeric = _numeric(columns)
+    dropped = [n for n in columns if n not in numeric]
+    listing = _listing(numeric, dropped)
     for given, what in ((time, "time"), (output, "output"), (input, "input")):
         if given is not None and given not in numeric:
-            raise CvxidError(f"--{what} '{given}' is not a numeric column of the file; columns: "
-                             f"{', '.join(sorted(numeric))}")
+            raise CvxidError(f"--{what} '{given}' is not a numeric column of the file; {listing}")
     reasons = []
     if time is None and dt is None:
         time = _named(numeric, TIME_NAMES)
@@ -87,8 +118,8 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
                       and np.ptp(np.diff(v)) <= 0.01 * np.mean(np.diff(v))]
             time = steady[0] if len(steady) == 1 else None
         if time is None:
-            raise CvxidError(f"no time column found among {', '.join(sorted(numeric))}: name it with --time, or "
-                             "give the sample step with --dt when the file has none")
+            raise CvxidError(f"no time column found ({listing}): name it with --time, or give the sample step with "
+                             "--dt when the file has none")
         reasons.append(f"time '{time}'")
     others = [n for n in numeric if n != time]
     said = {"output": "given", "input": "given"}
@@ -99,17 +130,19 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     rest = [n for n in others if n not in (output, input)]
     if output is None and input is None:
         if len(rest) != 2:
-            raise CvxidError(f"cannot tell the output and the input apart among {', '.join(rest)}: name them with "
-                             "--output and --input")
-        rough = {n: noise_level(numeric[n]) / (np.std(numeric[n]) or 1.0) for n in rest}
-        output, input = sorted(rest, key=lambda n: rough[n])
-        said = {"output": "the smoother signal, a guess: swap with --output/--input if wrong",
-                "input": "the rougher signal, a guess"}
+            raise CvxidError(f"cannot tell the output and the input apart among {', '.join(rest) or 'no column'} "
+                             f"({listing}): name them with --output and --input")
+        output, input = sorted(rest, key=lambda n: spectral_centroid(numeric[n]))
+        said = {"output": "the lower spectrum, as a mechanical system filters its input; a guess: swap with "
+                          "--output/--input if wrong",
+                "input": "the higher spectrum, a guess"}
     elif output is None or input is None:
         missing = "output" if output is None else "input"
+        if not rest:
+            raise CvxidError(f"no {missing} column: the file's signals beside the time are "
+                             f"{', '.join(others) or 'none'} ({listing}); cvxid needs a measured output and an input")
         if len(rest) != 1:
-            raise CvxidError(f"no {missing} column found by its name among {', '.join(rest) or 'no other column'}: "
-                             f"name it with --{missing}")
+            raise CvxidError(f"no {missing} column found by its name among {', '.join(rest)}: name it with --{missing}")
         said[missing] = "the only other column, a guess: name it with --" + missing + " if wrong"
         output, input = (rest[0], input) if output is None else (output, rest[0])
     reasons.append(f"output '{output}' ({said['output']}); input '{input}' ({said['input']})")
@@ -187,6 +220,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
         f'signal = "{coordinate}"',
         'method = "exact"',
         f"tau_max = {tau_max:g}                       # the longest delay searched (s)",
+        "# gain = 1.0                         # the feedback gain b, if known: give it. Estimated, it often trades",
+        "#                                    # with the stiffness (b x(t - tau) = b x - b tau x' + ...; the run warns)",
         "",
         "[model.constraints]",
         f'nonnegative = ["{coordinate}\'\'"]               # a positive inertia',
@@ -218,6 +253,15 @@ def init(data, out, test=None, time=None, output=None, input=None, dt=None, over
     if out.exists() and not overwrite:
         raise CvxidError(f"{out} exists; choose another -o or pass --force to replace it")
     columns = detect_columns(READERS[data.suffix.lower()][0](data), time, output, input, dt)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(starting_spec(data, columns, test, out.parent))
+    text = starting_spec(data, columns, test, out.parent)
+    out.parent.mkdir(parents=True, exist_ok=True)  # (the spec's paths are relative to it)
+    try:  # the records as cvxid run will read them: a spec that runs as written, or the reason now
+        spec = parse_problem(tomllib.loads(text), out.parent.resolve(), out.stem)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CvxidWarning)  # (cvxid run says them)
+            for which in spec.data:
+                spec.experiment(which)
+    except CvxidError as exc:
+        raise CvxidError(f"no spec written: {str(exc).removeprefix('spec: ')}") from None
+    out.write_text(text)
     return out

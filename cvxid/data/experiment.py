@@ -404,6 +404,10 @@ def _experiment(columns, what, source, time, outputs, inputs, velocities, name, 
             if clash:
                 raise CvxidError(f"{source}: {what} '{clash[0]}' is both {first} and {second}; each signal needs its "
                                  "own column (a spec's [data.*] output, input, velocity)")
+    for role, signals in named:
+        if isinstance(time, str) and time in signals.values():
+            raise CvxidError(f"{source}: {what} '{time}' is both the time and {role}; name the signal's own column "
+                             "(a spec's [data.*] output, input, velocity; cvxid init lists the file's columns)")
     t = _pick(columns, time, what, source)
     signals = ({k: _pick(columns, v, what, source) for k, v in outputs.items()},
                {k: _pick(columns, v, what, source) for k, v in inputs.items()},

@@ -423,7 +423,8 @@ def diagnose(
     ``builders`` of the train and test data may be passed to reuse their columns)."""
     spec = model.spec
     terms = _candidate_terms(spec, candidates if candidates is not None else default_candidates(spec))
-    extended = replace(spec, library=spec.library + list(terms.values()))
+    # the candidates are scored as candidates, a linear one too (kept, it would be in every refit)
+    extended = replace(spec, library=spec.library + list(terms.values()), keep_linear=False)
     train_rows, test_rows = builders or (None, None)
     train_rows = _builder(spec, train, velocity, window, train_rows)
     reg = train_rows.at(model.tau, extended)

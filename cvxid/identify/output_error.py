@@ -139,20 +139,47 @@ class PolishResult:
         return line
 
     def interval(self, name: str, z: float = 1.96) -> tuple[float, float]:
-        """The 95 % interval (``z`` = 1.96) from the standard error; for the delay, the
-        hull of that and of the profile's interval (every delay whose refitted simulation
-        error is not significantly worse)."""
+        """The 95 % interval (``z`` = 1.96: the standard error's part; the profile's is its
+        95 % set) from the standard error, hulled with the delay's profile (when there is
+        one) and kept within a delay's bounds:
+
+        * the delay: the hull of that and of the profile's interval (every delay whose
+          refitted simulation error is not significantly worse);
+        * every other parameter: the hull of that and of its refitted values at those
+          delays, the profile's projection.  Where the delay trades with a parameter (a
+          free gain against the stiffness, a delay against a damping) the local standard
+          error sees one point of a long valley and its interval can miss the truth by
+          many standard errors; the profile walks the valley."""
         value, se = self.parameters[name], self.standard_errors[name]
         low, high = value - z * se, value + z * se
+        if self.profile is not None:  # (a standard error that is NaN leaves the profile's part)
+            low, high = self.profile.ranges.get(name, self.profile.interval if name == "tau" else (low, high))
+            low, high = np.nanmin([value - z * se, low]), np.nanmax([value + z * se, high])
         if name == "tau_u":  # within the input delay's bounds
             delay = next(m.spec.input_delay for m in self.system.models.values() if m.spec.input_delay is not None)
-            return max(float(low), delay.tau_min), min(float(high), delay.tau_max)
-        if name != "tau":
-            return low, high
-        if self.profile is not None:  # the hull, within the delays searched
-            low = max(np.nanmin([low, self.profile.interval[0]]), self.profile.taus[0])
-            high = min(np.nanmax([high, self.profile.interval[1]]), self.profile.taus[-1])
-        return max(float(low), 0.0), float(high)
+        elif name == "tau":  # within the delays searched
+            delay = next(iter(self.system.specs.values())).delay
+        else:
+            return float(low), float(high)
+        return max(float(low), delay.tau_min), min(float(high), delay.tau_max)
+
+
+    def physical_interval(self, name: str, z: float = 1.96) -> tuple[float, float]:
+        """:meth:`interval` in the physical parameter's sign: a coefficient the spec names
+        negated (``k_s = "-alpha"``) has its interval negated, as its physical value is
+        (:attr:`parameters` hold the coefficients)."""
+        low, high = self.interval(name, z)
+        return (-high, -low) if self.negated(name) else (low, high)
+
+    def negated(self, name: str) -> bool:
+        """Whether the parameter ``name`` (a physical name, or ``label:column`` in a coupled
+        system) is minus its coefficient."""
+        for label, model in self.system.models.items():
+            for term in model.spec.library.names:
+                physical, sign = model.spec.named_parameter(term)
+                if sign < 0 and name in (physical, f"{label}:{term}"):
+                    return True
+        return False
 
 
 def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
@@ -270,9 +297,10 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
     tau = best.parameters["tau"]
     n_eff = best.effective_rows
     bound = rms.min() ** 2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / n_eff)
-    inside = np.flatnonzero(rms**2 <= bound)
-    if inside.size == 0:
-        return DelayProfile(taus, rms, tau, (tau, tau), n_eff, "output_error")
+    inside = np.flatnonzero(rms**2 <= bound)  # (the least point at least)
+    fits = [points[t][1].parameters for t in taus[inside]]
+    ranges = {name: (min(f[name] for f in fits), max(f[name] for f in fits))
+              for name in best.parameters if name != "tau" and all(name in f for f in fits)}
 
     def crossing(i, j):  # from inside point i towards outside neighbour j
         if j < 0 or j >= taus.size:
@@ -281,7 +309,8 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
         return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
 
     low, high = crossing(inside[0], inside[0] - 1), crossing(inside[-1], inside[-1] + 1)
-    return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), n_eff, "output_error")
+    return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), n_eff, "output_error",
+                        ranges)
 
 
 def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float:

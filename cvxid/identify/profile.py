@@ -15,7 +15,7 @@ an interval far too narrow).
 from __future__ import annotations
 
 import warnings
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize_scalar
@@ -37,6 +37,7 @@ class DelayProfile:
     interval: tuple[float, float]
     effective_rows: float
     method: str = "profile"
+    ranges: dict = field(default_factory=dict)  # output error: each parameter's refitted range over the interval
 
     def as_dict(self) -> dict:
         return {"estimate": self.estimate, "interval": list(self.interval), "method": self.method}

@@ -103,13 +103,6 @@ RANKING = 8
 one is then converged on the step itself)."""
 
 
-def linear_terms(spec: ModelSpec) -> tuple[str, str]:
-    """The linear stiffness and damping terms of ``spec``'s equation (``x``, ``x'``): the
-    stepwise search's default base, and never pruned (a delay stands in for a damping in
-    the simulation error)."""
-    return spec.coordinate, spec.coordinate + "'"
-
-
 def _polished(fit, train: Experiment, step: float, rows: list[dict]) -> PolishResult:
     """The search's last fit polished (its delay profiled over the range, then every
     parameter at the sample step), the step recorded in ``rows``."""
@@ -257,7 +250,7 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
     start = time.perf_counter()
     names = spec.library.names
     if base is None:
-        base = [n for n in linear_terms(spec) if n in names]
+        base = [n for n in spec.linear_terms if n in names]
     unknown = set(base) - set(names)
     if unknown:
         raise CvxidError(f"stepwise base term(s) {', '.join(sorted(unknown))} are not in the library")
@@ -267,7 +260,7 @@ def stepwise_output_error(spec: ModelSpec, family: RegressionBuilder, train: Exp
     exact = spec.delay is not None and spec.delay.exact
     tau = None
     if exact:  # the delay of the base support; the output-error fits move it, the final profile checks it
-        keep = [c.name in base or c.group != "library" for c in spec.columns]
+        keep = [c.name in base or c.penalty == 0 for c in spec.columns]
         tau = profile_delay(family, support=keep, nonnegative=spec.nonnegative).estimate
     with warnings.catch_warnings():  # the base fit's first (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)

@@ -22,7 +22,7 @@ from cvxid.model.input_delay import InputDelay
 from cvxid.model.library import Effect, Library
 from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
 
-INERTIA, DELAY, LIBRARY, LISTED = "inertia", "delay", "library", "listed"
+INERTIA, DELAY, LIBRARY, LISTED, LINEAR = "inertia", "delay", "library", "listed", "linear"
 
 
 @dataclass(frozen=True)
@@ -38,8 +38,8 @@ class Column:
 
     @property
     def penalty(self) -> float:
-        """Weight of the L1 penalty: 1 on the library's candidates, 0 on inertia, delay and
-        listed columns (estimated, never selected away)."""
+        """Weight of the L1 penalty: 1 on the library's candidates, 0 on inertia, delay,
+        listed and kept linear columns (estimated, never selected away)."""
         return 1.0 if self.group == LIBRARY else 0.0
 
 
@@ -88,6 +88,7 @@ class ModelSpec:
     keep_initial_conditions: bool = False  # admit the paper's n = 2 with Taylor 3 (reproduction only)
     others: tuple[str, ...] = ()  # other coordinates of a coupled system that terms may read
     listed: tuple[str, ...] = ()  # library terms the user listed: estimated, never selected away
+    keep_linear: bool = True  # the library's x and x' estimated, never selected away (see columns)
     effects: Mapping[str, Effect] = field(default_factory=dict)  # the spec's own effects for the diagnosis
     input_delay: InputDelay | None = None
 
@@ -111,18 +112,33 @@ class ModelSpec:
         return (self.coordinate, *self.others)
 
     @property
+    def linear_terms(self) -> tuple[str, str]:
+        """The linear stiffness and damping terms (``x``, ``x'``): the stepwise search's
+        default base, kept by a selection (``keep_linear``) and never pruned (a delay
+        stands in for a damping in the simulation error)."""
+        return self.coordinate, self.coordinate + "'"
+
+    @property
     def inertia_term(self) -> Derivative:
         return Derivative(self.coordinate, 2)
 
     @property
     def columns(self) -> list[Column]:
-        """Inertia, the library and the delay's Taylor columns, each once."""
+        r"""Inertia, the library and the delay's Taylor columns, each once.  With
+        ``keep_linear`` the library's linear stiffness and damping (``x``, ``x'``) are not
+        candidates: a selection that drops the damping lets a delay or a damping-like term
+        stand in for it (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`) — except
+        the :attr:`confounded_signal`, which the L1 penalty must be free to trade with the
+        estimated gain (both unpenalised, a short delay makes them two nearly equal columns
+        and their coefficients run away together)."""
         cols: dict[str, Column] = {}
         delay_names = {t.name for t in self.delay.taylor_terms()} if self.delay else set()
+        linear = [t for t in self.linear_terms if t != self.confounded_signal] if self.keep_linear else ()
         if self.inertia:
             cols[self.inertia_term.name] = Column(self.inertia_term, INERTIA)
         for term in self.library:
-            group = DELAY if term.name in delay_names else (LISTED if term.name in self.listed else LIBRARY)
+            group = DELAY if term.name in delay_names else LISTED if term.name in self.listed else \
+                LINEAR if term.name in linear else LIBRARY
             cols.setdefault(term.name, Column(term, group))
         if self.delay:
             for term in self.delay.taylor_terms():
@@ -154,6 +170,16 @@ class ModelSpec:
     def with_input_tau(self, value: float) -> "ModelSpec":
         """The spec with its input delay at ``value`` (within its bounds)."""
         return replace(self, input_delay=self.input_delay.at(value))
+
+    @property
+    def confounded_signal(self) -> str | None:
+        r"""The fed-back signal (``x``) when its gain is estimated and it is a library
+        column too: at :math:`\tau = 0` the two are one column, and for a short delay nearly
+        so.  None otherwise."""
+        if self.delay is None or self.delay.gain is not None:
+            return None
+        signal = self.delay.coordinate + "'" * self.delay.derivative
+        return signal if signal in self.library.names else None
 
     @property
     def delayed_term(self) -> DelayedSignal:

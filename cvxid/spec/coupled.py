@@ -20,11 +20,11 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.library import resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Sign
-from cvxid.regression.velocity import ESTIMATORS
 from cvxid.model.delay import ASSUMED
 from cvxid.simulate import CoupledSystem, Equation
 from cvxid.model.library import PARAMETERS
 from cvxid.spec.problem import (
+    VELOCITIES,
     DiagnoseSettings,
     ProblemSpec,
     Table,
@@ -67,9 +67,9 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
     fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator,
                   stability=None)  # (stability selection is for one equation: a coupled spec cannot ask)
-    if fit.velocity not in ESTIMATORS + ("measured", "auto"):
-        raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(ESTIMATORS)}, "
-                         f"'measured' or 'auto', got '{fit.velocity}'")
+    if fit.velocity not in VELOCITIES:
+        raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(VELOCITIES)}, got "
+                         f"'{fit.velocity}'")
     data = data_sections(raw)
     truth = _truth(raw, equations) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):

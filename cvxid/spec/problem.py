@@ -195,6 +195,9 @@ class ProblemSpec:
         table, where = self.data[which], f"data.{which}"
         if "simulate" not in table:
             return self._loaded(which, table, where)
+        if self.fit.velocity not in VELOCITIES:
+            raise _unknown_velocity(self.fit.velocity, f"[{where}] is simulated (velocity = 'measured' reads the "
+                                                       "simulator's own velocity)")
         experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
         if "samples" not in table and "fraction" not in table:
             return experiment
@@ -203,12 +206,14 @@ class ProblemSpec:
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input_column for s in self.equations.values()})
         velocity = table.get("velocity")
-        if velocity is None and self.fit.velocity not in ESTIMATORS + ("measured", "auto"):
+        if velocity is None and self.fit.velocity not in VELOCITIES:
             velocity = self.fit.velocity  # [fit] velocity names a measured column
         first = self.coordinates[0]
         try:
             return self._load(which, table, where, inputs, velocity, first)
         except CvxidError as exc:  # the file's own message, and the spec's table that named it
+            if velocity == self.fit.velocity and f"no column named '{velocity}'" in str(exc):
+                raise _unknown_velocity(velocity, f"[{where}]'s file has no such column: {exc}") from None
             raise exc if str(exc).startswith("spec:") else CvxidError(f"spec: [{where}] {exc}") from None
 
     def _load(self, which: str, table: Table, where: str, inputs: list[str], velocity, first: str) -> Experiment:
@@ -239,6 +244,15 @@ class ProblemSpec:
 
 
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
+VELOCITIES = ESTIMATORS + ("measured", "auto")
+"""``[fit] velocity`` values that are not a measured column's name."""
+
+
+def _unknown_velocity(velocity: str, why: str) -> CvxidError:
+    return CvxidError(f"spec: [fit] velocity '{velocity}' is neither an estimator ({', '.join(VELOCITIES)}) nor a "
+                      f"measured column: {why}")
+
+
 DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
@@ -297,7 +311,7 @@ def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, 
 
 def data_sections(raw: Table) -> dict[str, dict]:
     """The checked ``[data.train]`` (required) and ``[data.test]`` tables: each a file or a
-    simulation."""
+    simulation; ``[data.test]`` required by a ``[diagnose]``."""
     data_table = _table(raw, "data", "", {"train", "test"}, required=True)
     data = {k: _table(data_table, k, "data", DATA_KEYS) for k in data_table}
     if "train" not in data:
@@ -326,6 +340,10 @@ def data_sections(raw: Table) -> dict[str, dict]:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
             _string(table, "faults", f"data.{which}", choices=FAULT_HANDLING)
+    if "diagnose" in raw and "test" not in data:
+        raise CvxidError("spec: [diagnose] compares the models on a test record: add [data.test] (another file, or "
+                         "the training file with fraction = [0.8, 1] and fraction = [0, 0.8] in [data.train]), or "
+                         "remove [diagnose]")
     return data
 
 
@@ -391,11 +409,19 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     its delayed feedback may read."""
     coord = _string(table, "coordinate", where, "x")
     coords = (coord, *others)
-    lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms", "select"})
+    lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms", "select", "keep_linear"})
     extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
     polynomial, listed = None, ()
     if "terms" in lib_t:
-        library = Library(parse_term(t, coords) for t in _strings(lib_t, "terms", f"{where}.library"))
+        both = sorted({"order", "cross"} & set(lib_t))
+        if both:
+            raise CvxidError(f"spec: [{where}.library] gives terms and {' and '.join(both)}: a terms list, or an "
+                             "order's polynomial library (extra adds effects to either); remove one")
+        terms = _strings(lib_t, "terms", f"{where}.library")
+        if not terms and not extra:
+            raise CvxidError(f"spec: [{where}.library] terms is empty: list the terms (e.g. [\"{coord}\", "
+                             f"\"{coord}'\"]), or remove terms for an order's polynomial library")
+        library = Library(parse_term(t, coords) for t in terms)
         if not _bool(lib_t, "select", f"{where}.library", False):
             listed = tuple(library.names)  # the user's terms are estimated, not selected away
     elif "select" in lib_t:
@@ -445,11 +471,16 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     for pname, tname in names.items():
         if parse_term(tname.lstrip("- "), coords).name not in columns:
             raise CvxidError(f"spec: [{where}.names] {pname} = '{tname}' is not a term of the library")
+    inertia = _bool(table, "inertia", where, True)
+    if inertia == ("mass" in table):
+        raise CvxidError(f"spec: [{where}] mass is the known mass of inertia = false; remove it (the mass is "
+                         "estimated)" if inertia else f"spec: [{where}] inertia = false needs the known mass: add "
+                         "mass = <value> (or remove inertia = false to estimate it)")
     return ModelSpec(
         library=library,
         coordinate=coord,
         input=_string(table, "input", where, "f"),
-        inertia=_bool(table, "inertia", where, True),
+        inertia=inertia,
         mass=_number(table, "mass", where, 1.0, positive=True),
         delay=delay,
         nonnegative=nonneg,
@@ -461,6 +492,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         keep_initial_conditions=_bool(alg, "keep_initial_conditions", f"{where}.algebraic", False),
         others=tuple(others),
         listed=listed,
+        keep_linear=_bool(lib_t, "keep_linear", f"{where}.library", True),
         input_delay=input_delay,
     ), polynomial
 
@@ -652,6 +684,8 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         physical[pname] = sign * value
     if "delay" in t:
         physical["tau"] = tau
+        if model.delay is not None and model.delay.gain is None:  # estimated: beside its estimate
+            physical["gain"] = gain
     input_delay = _number(t, "input_delay", where, 0.0, within=(0, 10.0), fix="the input's delay in seconds")
     if input_delay:
         physical["tau_u"] = input_delay

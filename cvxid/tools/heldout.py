@@ -366,7 +366,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 
 # ---------------------------------------------------------------------- runs
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
-TRAILING = ["worst other %", "tau limit %", "tau error / limit", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
+TRAILING = ["worst other %", "others covered %", "tau limit %", "tau error / limit", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
              "free-run error fall"]
 SELECTION = ["support recovered", "missed", "spurious"]
@@ -383,6 +383,8 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
     truth = {k: v for k, v in oscillator.truth.items() if k not in ("tau", "tau_u") and not (k == "gain" and known_gain)}
     errors = {f"err % {k}": _error(result["physical"].get(k, 0.0), v) for k, v in truth.items()}
     interval = tau.get("interval")
+    bounds = (result.get("polish") or {}).get("intervals") or {}
+    covered = [bounds[k][0] <= v <= bounds[k][1] for k, v in truth.items() if k in bounds]
     diagnosis = result.get("diagnosis") or {}
     late = {}
     if oscillator.input_tau:  # a model without an input delay has tau_u = 0: error -100 %
@@ -397,6 +399,7 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
         "covers": bool(interval[0] <= oscillator.tau <= interval[1]) if interval else None,
         **errors,
         "worst other %": max(abs(v) for v in errors.values()),
+        "others covered %": 100.0 * np.mean(covered) if covered else np.nan,
         **late,
         "seconds": result["seconds"],
         "first effect": (diagnosis.get("ranking") or [{}])[0].get("effect"),
@@ -459,6 +462,16 @@ def _selected(result: dict, oscillator: Oscillator) -> dict:
             "spurious": ",".join(sorted(kept - true))}
 
 
+def identify_drawn(oscillator: Oscillator, folder=None, mode: str = "structure", known_gain: bool = False,
+                   fit: dict | None = None):
+    """``oscillator``'s records and spec written into ``folder`` (:func:`write`; a
+    temporary one by default) and identified as ``cvxid run`` does: the
+    :class:`~cvxid.app.result.RunResult`, its warnings in it and not shown."""
+    with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
+        warnings.simplefilter("ignore")  # run() records cvxid's own warnings itself
+        return run(write(oscillator, scratch if folder is None else folder, mode, known_gain, fit))
+
+
 def run_one(seed: int, effect: str, noise: float | None = None, duration: float | None = None,
             mode: str = "structure", known_gain: bool = False, keep=None, fit: dict | None = None) -> dict:
     """One system drawn, written and identified by :func:`cvxid.app.run.run`: its row of
@@ -467,14 +480,14 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
     ``result.json``."""
     row = {"seed": seed, "effect": effect, "noise": noise, "duration": duration, "status": "ok", "error": ""}
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
-        warnings.simplefilter("ignore")  # run() records cvxid's own warnings itself
+        warnings.simplefilter("ignore")  # (the draw's too)
         try:
             oscillator = draw(seed, effect, noise, duration)
             row.update({"noise": oscillator.noise, "duration": oscillator.duration, "kind": oscillator.train.kind,
                         "true tau": oscillator.tau})
             name = f"{seed}_{oscillator.effect}_{oscillator.noise:g}_{oscillator.duration:.4g}s"
             folder = Path(keep) / name if keep else Path(scratch)
-            out = run(write(oscillator, folder, mode, known_gain, fit))
+            out = identify_drawn(oscillator, folder, mode, known_gain, fit)
             result = out.to_dict()
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
@@ -515,7 +528,8 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
 
 def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
     """Per group: systems, failures, median and 90th percentile of |tau error| %, median
-    worst other %, the share of tau intervals that cover the truth (%), in structure mode the
+    worst other %, the share of tau intervals that cover the truth (%), the mean share of the
+    other parameters' intervals that cover theirs (%; each system's share), in structure mode the
     median of the delay's limit (the standard error the data allow, % of the delay), the
     systems that have one and the share of their errors within 1.96 of it (95 % for an efficient, unbiased estimator), for a late
     input the median |tau_u error| % and its intervals' coverage, in selection mode the share
@@ -539,6 +553,7 @@ def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
         "|tau err| % p90": ok["abs_tau"].quantile(0.9),
         "worst other % median": ok["worst other %"].median(),
         "covers %": 100 * ok["covered"].mean(),
+        **({"others covered %": ok["others covered %"].mean()} if "others covered %" in frame else {}),
         **limit,
         **late,
         **support,
