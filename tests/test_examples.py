@@ -170,3 +170,12 @@ def test_parameter_intervals_story(monkeypatch, tmp_path, capsys):
     row = pd.read_csv(tmp_path / "parameter_intervals.csv").iloc[0]
     assert row["Wald covers %"] <= 25 and row["profile covers %"] == 100 and row["width ratio"] > 1
     assert "every parameter covered on 0 % and 100 % of systems" in out
+
+
+def test_init_columns_story(monkeypatch, tmp_path, capsys):
+    # tuning seeds 1 and 2 in five noise cases: init's spectrum rule names the position every
+    # time, the noise level's ratio it replaced never (the force is the larger number)
+    run_example("init_columns.py", monkeypatch, tmp_path, capsys, SEEDS="1:3")
+    table = pd.read_csv(tmp_path / "init_columns.csv")
+    assert len(table) == 10 and table["init picks the position"].all()
+    assert not table["smoother by noise level"].any()

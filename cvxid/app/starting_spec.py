@@ -85,7 +85,8 @@ def spectral_centroid(values: np.ndarray) -> float:
     measurement noise).  Unlike a noise level it does not take a noisy measured position for
     the rougher signal beside a clean command: on 40 random delayed oscillators (20 s, noise
     0.01 or 0.001 on the position, the force clean or noisy) the output's is the lower on 36,
-    the noise level's ratio to the spread on none (the forces are larger numbers)."""
+    the noise level's ratio to the spread on none (the forces are larger numbers;
+    ``python examples/init_columns.py``)."""
     finite = values[np.isfinite(values)]
     freq, power = welch(finite - finite.mean(), nperseg=min(finite.size, 4096))
     signal = np.clip(power - 4 * np.median(power[freq > freq[-1] / 2]), 0.0, None)

@@ -153,8 +153,8 @@ class PolishResult:
         value, se = self.parameters[name], self.standard_errors[name]
         low, high = value - z * se, value + z * se
         if self.profile is not None:  # (a standard error that is NaN leaves the profile's part)
-            low, high = self.profile.ranges.get(name, self.profile.interval if name == "tau" else (low, high))
-            low, high = np.nanmin([value - z * se, low]), np.nanmax([value + z * se, high])
+            part = self.profile.ranges.get(name, self.profile.interval if name == "tau" else (low, high))
+            low, high = np.nanmin([low, part[0]]), np.nanmax([high, part[1]])
         if name == "tau_u":  # within the input delay's bounds
             delay = next(m.spec.input_delay for m in self.system.models.values() if m.spec.input_delay is not None)
         elif name == "tau":  # within the delays searched
