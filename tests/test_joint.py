@@ -303,3 +303,42 @@ def test_a_coupled_spec_declares_its_own_effect_and_the_diagnosis_adds_it():
     with pytest.raises(CvxidError, match="unknown term or effect 'motor'"):
         raw["diagnose"]["candidates"] = ["motor"]
         parse_problem(raw, SPEC.parent)
+
+
+def test_a_coupled_spec_searches_the_order_of_every_polynomial_library():
+    """[fit] orders on a coupled spec (it was refused): each equation's polynomial library
+    is cut to each order, the system scored on the test record, the least test error kept;
+    the ties hold at every order, and each equation keeps its extra terms."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 20.0
+    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    for equation in raw["truth"]["equation"]:
+        equation["coefficients"].pop("sign(theta')")
+    raw.pop("diagnose")
+    raw["model"]["equation"][0]["library"] = {"order": 3, "cross": False, "extra": ["alpha", "alpha'"]}
+    raw["model"]["equation"][1]["library"] = {"order": 3, "cross": False, "extra": ["theta'"]}
+    raw["fit"] = {"estimator": "lasso", "velocity": "savgol", "window": 1.0, "orders": {"min": 1, "max": 3},
+                  "lambdas": {"min": 1e-6, "max": 1e1, "count": 20}}
+    result = run(parse_problem(raw, SPEC.parent))
+    table = result.order_search.table
+    assert list(table.index) == [1, 2, 3]
+    best = result.order_search.best_order
+    assert table.loc[best, "test_mse"] == table["test_mse"].min()
+    for order, coefficients in result.order_search.coefficients.items():  # every order kept the tie
+        assert coefficients["alpha:theta'"] == pytest.approx(-coefficients["theta:theta'"], rel=1e-9)
+        assert ("theta:theta^3" in coefficients.index) == (order >= 3)
+        assert "alpha:theta'" in coefficients.index and "theta:alpha'" in coefficients.index
+    libraries = {label: m.spec.library.names for label, m in result.system.models.items()}
+    assert ("theta^2" in libraries["theta"]) == (best >= 2) and ("theta^3" in libraries["theta"]) == (best >= 3)
+    assert {"alpha", "alpha'"} <= set(libraries["theta"]) and "theta'" in libraries["alpha"]
+    coefficients = result.system.coefficients
+    assert coefficients["alpha:alpha''"] == pytest.approx(coefficients["theta:theta''"], rel=1e-9)
+    assert result.physical["k_s"] == pytest.approx(1.3, rel=0.15)  # equation error at noise 0.001 (measured -7 %)
+    assert result.system.tau == pytest.approx(0.2, rel=0.02)
+
+
+def test_orders_on_a_coupled_spec_without_a_polynomial_library_are_refused():
+    raw = _raw()
+    raw["fit"]["orders"] = {"min": 1, "max": 3}
+    with pytest.raises(CvxidError, match=r"\[fit\] orders searches an order's polynomial library"):
+        parse_problem(raw, SPEC.parent)

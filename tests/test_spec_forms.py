@@ -136,3 +136,18 @@ def test_a_tie_whose_columns_the_lasso_drops_holds_at_zero():
     result = run(parse_problem(raw, ROOT))
     coefficients = result.model.coefficients
     assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], abs=1e-12)
+
+
+def test_a_tie_in_one_equation_holds_through_the_order_search():
+    """A tie in one equation with [fit] orders (it was refused): every order's fit keeps
+    it, and so does the model at the chosen order."""
+    raw = tomllib.loads(TIED)
+    raw["model"]["library"] = {"order": 3, "cross": False}
+    raw["fit"] = {"estimator": "lasso", "orders": {"min": 3, "max": 4}, "lambdas": {"min": 1e-6, "max": 1.0,
+                                                                                     "count": 8}}
+    result = run(parse_problem(raw, ROOT))
+    for coefficients in result.order_search.coefficients.values():
+        assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9, abs=1e-12)
+    coefficients = result.model.coefficients
+    assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
+    assert result.model.physical["k"] == pytest.approx(6.0, rel=0.02)

@@ -40,7 +40,7 @@ from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import polish
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
-from cvxid.identify.profile import profile_input_delay, profiled_tau, with_input_tau
+from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
@@ -49,7 +49,7 @@ from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
 from cvxid.progress import progress
-from cvxid.regression.builder import RegressionBuilder, SystemBuilder, build_regression
+from cvxid.regression.builder import SystemBuilder
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import usable_seconds
@@ -256,7 +256,7 @@ def _identify(spec) -> RunResult:
     test = spec.experiment("test") if "test" in spec.data else None
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if fit.orders:
-        system = SystemSpec.of(replace(spec.model, library=spec.library(max(fit.orders))))
+        system = spec.at_order(system, max(fit.orders))
     system = _bounded_input_delay(system, train)
     _check_input_delay(system, [train] + ([test] if test else []))
     rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
@@ -276,7 +276,7 @@ def _identify(spec) -> RunResult:
     search = None
     if fit.orders:
         search = order_search(spec, fit.orders, train=regression, test=validation, boot=fit.bootstrap)
-        system = SystemSpec.of(system.single.with_library(spec.library(search.best_order)))
+        system = spec.at_order(system, search.best_order)
         regression = regression.subset(system.column_names)
         validation = validation.subset(system.column_names)
     problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
@@ -546,17 +546,20 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
         raise CvxidError("the order search scores orders on the test experiment: add [data.test]")
     fit = spec.fit
     orders = sorted({int(o) for o in orders})
-    top = replace(spec.model, library=spec.library(orders[-1]))
+    top = spec.at_order(spec.system, orders[-1])
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if train is None or test is None:
-        builder = RegressionBuilder(top, spec.experiment("train"), velocity)
-        tau = profiled_tau(builder)
-        train = train if train is not None else builder.at(tau)
-        test = test if test is not None else build_regression(top, spec.experiment("test"), velocity, tau)
+        rows = SystemBuilder(top.equations, spec.experiment("train"), velocity, fit.window, fit.allow_large)
+        tau = fit_support(top, rows, solver=fit.solver).tau if top.exact else None
+        train = train if train is not None else rows.at(tau)
+        if test is None:
+            record = spec.experiment("test")
+            test = SystemBuilder(top.equations, record, velocity, _test_window(fit.window, rows.window, top, record),
+                                 fit.allow_large).at(tau)
     if boot is None and samples:
         boot = BootstrapSettings(samples, fraction, seed, n_jobs)
-    return search_orders(top, spec.library, train, test, orders, fit.lambdas, fit.estimator, fit.debias,
-                         fit.selection, fit.solver, boot, show_progress)
+    return search_orders(lambda order: spec.at_order(top, order), train, test, orders, fit.lambdas,
+                         fit.estimator, fit.debias, fit.selection, fit.solver, boot, show_progress)
 
 
 def refine_spec(spec: ProblemSpec | str | FilePath, **settings):

@@ -29,8 +29,7 @@ from cvxid.errors import CvxidError
 from cvxid.identify.bootstrap import Bootstrap, BootstrapSettings, bootstrap
 from cvxid.identify.path import select
 from cvxid.identify.problem import Problem
-from cvxid.model.equation import ModelSpec
-from cvxid.model.library import Library
+from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.regression import Regression
 
@@ -61,8 +60,7 @@ class OrderSearch:
 
 
 def search_orders(
-    top: ModelSpec,
-    library: Callable[[int], Library],
+    system: Callable[[int], SystemSpec],
     train: Regression,
     test: Regression,
     orders,
@@ -74,26 +72,27 @@ def search_orders(
     boot: BootstrapSettings | None = None,
     show_progress: bool = True,
 ) -> OrderSearch:
-    """Score every library order: ``top`` is the model at the highest order, ``library(N)``
-    the library of order ``N``, ``train``/``test`` the regressions of ``top`` (each order
-    takes its columns by name); ``boot`` bootstraps each order, else one path each."""
+    r"""Score every library order: ``system(N)`` is the system (of :math:`N \ge 1`
+    equations) at order ``N``, ``train``/``test`` the regressions at the highest order
+    (each order takes its columns by name, its ties those between columns it has);
+    ``boot`` bootstraps each order, else one path each."""
     orders = sorted({int(o) for o in orders})
     if not orders or orders[0] < 1:
         raise CvxidError(f"orders must be whole numbers >= 1, got {orders}")
     rows, coefficients, ensembles = [], {}, {}
     for order in progress(orders, desc="orders", disable=not show_progress):
-        model = top.with_library(library(order))
+        model = system(order)
         names = model.column_names
         tr, te = train.subset(names), test.subset(names)
         if boot is not None:
             ens = bootstrap(
                 tr, lambdas, te.residual, boot, model.nonnegative, solver, estimator, debias, selection,
-                show_progress=False,
+                show_progress=False, ties=model.ties,
             )
             coef = ens.mean.to_numpy()
             ensembles[order] = ens
         else:
-            problem = Problem.from_regression(tr, model.nonnegative, solver)
+            problem = Problem.from_regression(tr, model.nonnegative, solver, ties=model.ties)
             _, best = select(problem, lambdas, te.residual, estimator, debias, rule=selection)
             coef = np.where(best.support | (problem.penalties == 0), best.coefficients, 0.0)
         n = tr.shape[0]

@@ -91,7 +91,13 @@ class SystemSpec:
     def selected(self, keep) -> "SystemSpec":
         """The system with each library cut to the terms whose columns are in ``keep``;
         ties lose the columns that left."""
-        equations = {label: s.with_library(Library(t for t in s.library if self.column(label, t.name) in keep))
+        return self.with_libraries({label: Library(t for t in s.library if self.column(label, t.name) in keep)
+                                    for label, s in self.equations.items()})
+
+    def with_libraries(self, libraries: dict[str, Library]) -> "SystemSpec":
+        """The system with the equations named in ``libraries`` on those libraries (the
+        others as they are); ties lose the columns that left."""
+        equations = {label: s.with_library(libraries[label]) if label in libraries else s
                      for label, s in self.equations.items()}
         names = set(SystemSpec(equations).column_names)
         return SystemSpec(equations, tuple(t for t in self.ties if t[0] in names and t[1] in names))

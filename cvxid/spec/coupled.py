@@ -47,7 +47,7 @@ JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
 JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window",
-                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler"}
+                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler", "orders"}
 
 
 def is_joint(raw: Table) -> bool:
@@ -61,7 +61,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         raise CvxidError(f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: "
                          f"{', '.join(sorted(JOINT_TOP_KEYS))}")
     model = _table(raw, "model", "", JOINT_MODEL_KEYS, required=True)
-    equations = _equations(model)
+    equations, polynomials = _equations(model)
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
@@ -88,11 +88,16 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         retired_min_improvement(d)
         diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
                                     _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
+    if fit.orders and not polynomials:
+        raise CvxidError("spec: [fit] orders searches an order's polynomial library: give one equation "
+                         "[model.equation] library = { order = ... } instead of a terms list, or remove [fit] orders")
     return ProblemSpec(_string(raw, "name", "", default_name), folder, SystemSpec(equations, ties), fit, data, truth,
-                       str(raw.get("description", "")), None, diagnose)
+                       str(raw.get("description", "")), polynomials, diagnose)
 
 
-def _equations(model: Table) -> dict[str, ModelSpec]:
+def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
+    """The equations by coordinate, and the (order, cross, extra) of those whose library is
+    an order's polynomial."""
     tables = model.get("equation")
     if not isinstance(tables, list) or len(tables) < 2 or not all(isinstance(t, Mapping) for t in tables):
         raise CvxidError("spec: a coupled model needs two or more [[model.equation]] tables")
@@ -105,7 +110,7 @@ def _equations(model: Table) -> dict[str, ModelSpec]:
     delay = _table(model, "delay", "model", DELAY_KEYS, required=True)
     if _string(delay, "method", "model.delay", "exact") != "exact":
         raise CvxidError("spec: the shared delay of a coupled model is fitted exactly: [model.delay] method = \"exact\"")
-    equations, named = {}, {}
+    equations, named, polynomials = {}, {}, {}
     for i, t in enumerate(tables):
         where = f"model.equation[{i}]"
         if "input_delay" in t:
@@ -118,14 +123,16 @@ def _equations(model: Table) -> dict[str, ModelSpec]:
         table = {k: v for k, v in table.items() if k != "delay_gain"}
         table["delay"] = delay_t
         others = tuple(c for c in coords if c != coords[i])
-        spec, _ = _model(table, where, others)
+        spec, polynomial = _model(table, where, others)
+        if polynomial is not None:
+            polynomials[spec.coordinate] = polynomial
         for pname in spec.names:
             if pname in named:
                 raise CvxidError(f"spec: the physical name '{pname}' is given in two equations "
                                  f"({named[pname]} and {spec.coordinate}); names must be unique")
             named[pname] = spec.coordinate
         equations[spec.coordinate] = spec
-    return equations
+    return equations, polynomials
 
 
 def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:

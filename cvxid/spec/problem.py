@@ -162,7 +162,8 @@ class ProblemSpec:
     data: dict[str, dict]
     truth: Truth | None
     description: str = ""
-    polynomial: tuple[int, bool, tuple[str, ...]] | None = None  # (order, cross, extra) of the library
+    polynomials: dict[str, tuple[int, bool, tuple[str, ...]]] = field(default_factory=dict)
+    """(order, cross, extra) of each equation whose library is an order's polynomial, by coordinate."""
     diagnose: "DiagnoseSettings | None" = None
 
     @property
@@ -180,13 +181,21 @@ class ProblemSpec:
     def coordinates(self) -> tuple[str, ...]:
         return tuple(self.equations)
 
-    def library(self, order: int) -> Library:
-        """The spec's polynomial library at another order (for the order search)."""
-        if self.polynomial is None:
+    def libraries(self, order: int) -> dict[str, Library]:
+        """Every polynomial library of the spec at another order, by coordinate (for the
+        order search; an equation whose terms are listed keeps them)."""
+        if not self.polynomials:
             raise CvxidError("the order search needs a polynomial library ([model.library] order = …), not a term list")
-        _, cross, extra = self.polynomial
-        coord = self.model.coordinate
-        return Library.polynomial(order, cross, coord) + [resolve_term(e, (coord,)) for e in extra]
+        out = {}
+        for coord, (_, cross, extra) in self.polynomials.items():
+            coords = (coord, *(c for c in self.coordinates if c != coord))
+            out[coord] = Library.polynomial(order, cross, coord) + [resolve_term(e, coords) for e in extra]
+        return out
+
+    def at_order(self, system: SystemSpec, order: int) -> SystemSpec:
+        """``system`` (this spec's, with whatever the run resolved in it) with its
+        polynomial libraries at ``order``."""
+        return system.with_libraries(self.libraries(order))
 
     def experiment(self, which: str) -> Experiment:
         """Load or simulate the ``train`` or ``test`` experiment."""
@@ -275,9 +284,10 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     model, polynomial = _model(model_table)
     ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
-    if ties and (fit.estimator == "stepwise_oe" or fit.orders or "diagnose" in raw):
-        raise CvxidError("spec: [[model.tie]] in one equation works with the lambda path, bootstrap, Huber and the "
-                         "output-error polish; not yet with estimator = \"stepwise_oe\", [fit] orders or [diagnose]")
+    if ties and (fit.estimator == "stepwise_oe" or "diagnose" in raw):
+        raise CvxidError("spec: [[model.tie]] in one equation works with the lambda path, bootstrap, Huber, the "
+                         "order search and the output-error polish; not yet with estimator = \"stepwise_oe\" or "
+                         "[diagnose]")
     data = data_sections(raw)
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
@@ -285,7 +295,8 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     model = replace(model, effects=declared_effects(raw, model))
     diag = _diagnose(raw, model) if "diagnose" in raw else None
     return ProblemSpec(name, folder, SystemSpec({model.coordinate: model}, ties), fit, data, truth,
-                       str(raw.get("description", "")), polynomial, diag)
+                       str(raw.get("description", "")), {} if polynomial is None else {model.coordinate: polynomial},
+                       diag)
 
 
 def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, str, float], ...]:

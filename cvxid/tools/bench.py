@@ -108,12 +108,12 @@ def benchmark(spec: ProblemSpec, order: int | None = None, naive_lambdas: int = 
     fit = spec.fit
     lambdas = np.sort(fit.lambdas)[::-1]
     velocity = fit.velocity if fit.velocity in ("observer", "savgol", "spline") else "measured"
-    if spec.system.single is None or spec.polynomial is None:
+    if spec.system.single is None or not spec.polynomials:
         raise CvxidError(f"cvxid bench SPEC times the lambda path and the paper's Algorithm 1 (orders 1-6) of one "
                          f"equation's polynomial library; '{spec.name}' "
                          + ("is coupled" if spec.system.single is None else "lists its terms")
                          + ": bench a spec with [model.library] order = ... (duffing_delay, paper_duffing_data)")
-    model = spec.model if order is None else replace(spec.model, library=spec.library(order))
+    model = spec.model if order is None else spec.at_order(spec.system, order).single
     builder = RegressionBuilder(model, spec.experiment("train"), velocity)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)
