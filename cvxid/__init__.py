@@ -15,8 +15,11 @@ from cvxid.app.result import RunResult
 from cvxid.app.run import order_search, refine_spec, run
 from cvxid.data.experiment import Experiment, from_frame, load
 from cvxid.data.sensor import sensor_faults, without_faults
-from cvxid.diagnosis.equation import compare, diagnose, residuals, with_effect
-from cvxid.diagnosis.equation import refine as refine_model
+from cvxid.diagnosis.candidates import with_effect
+from cvxid.diagnosis.compare import compare, compare_system
+from cvxid.diagnosis.ranking import diagnose
+from cvxid.diagnosis.refine import refine as refine_model
+from cvxid.diagnosis.residuals import residuals
 from cvxid.errors import CvxidError, CvxidWarning, SolverFailure
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
@@ -34,7 +37,7 @@ __version__ = "0.1.0"
 __all__ = [
     "Bootstrap", "CATALOGUE", "CvxidError", "CvxidWarning", "Experiment", "IdentifiedModel", "IdentifiedSystem",
     "Library", "ModelSpec", "Path", "Problem", "Regression", "RegressionBuilder", "RunResult", "SolverFailure",
-    "SystemBuilder", "SystemSpec", "build_regression", "compare", "diagnose", "from_frame", "load", "load_problem",
+    "SystemBuilder", "SystemSpec", "build_regression", "compare", "compare_system", "diagnose", "from_frame", "load", "load_problem",
     "order_search", "polish", "refine", "refine_spec", "register_effect", "residuals", "run", "sensor_faults",
     "with_effect", "without_faults",
 ]
@@ -42,7 +45,7 @@ __all__ = [
 
 def refine(target, *args, **kwargs):
     """The diagnose → add → refit loop: ``refine(spec)`` runs a problem spec with it;
-    ``refine(model, train, test)`` runs it on an identified model."""
-    if isinstance(target, IdentifiedModel):
+    ``refine(model, train, test)`` runs it on an identified model or system."""
+    if isinstance(target, (IdentifiedModel, IdentifiedSystem)):
         return refine_model(target, *args, **kwargs)
     return refine_spec(target, *args, **kwargs)

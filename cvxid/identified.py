@@ -23,6 +23,7 @@ from cvxid.initial_state import free_run
 from cvxid.errors import CvxidError
 from cvxid.metrics import fit_percent, noise_ceiling_percent, relative_error_percent
 from cvxid.model.equation import ModelSpec
+from cvxid.model.system import SystemSpec
 from cvxid.model.terms import latex_symbol
 from cvxid.regression.history import padded, simulation_start, start_index
 from cvxid.regression.velocity import initial_state
@@ -303,6 +304,11 @@ class IdentifiedSystem:
     @property
     def specs(self) -> dict[str, ModelSpec]:
         return {label: m.spec for label, m in self.models.items()}
+
+    @property
+    def spec(self) -> SystemSpec:
+        """The system that was identified: its equations' specs and the ties."""
+        return SystemSpec(self.specs, self.ties)
 
     @property
     def coordinates(self) -> list[str]:

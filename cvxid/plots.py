@@ -112,24 +112,30 @@ def refinement_figure(labels, series: dict):
 
 
 def responses_figure(labels, comparisons):
-    """One panel per model (``labels``: start, then each added effect): the measured output
-    and the model's free run over the same record, the fit in the panel's title, so that
-    where each effect mattered shows in the response itself.  These are the diagnosis's own
-    models and comparisons (from the record's first state, before any output-error polish),
-    which the figure's title says."""
-    fig, axes = plt.subplots(len(comparisons), 1, figsize=(8, 1.9 * len(comparisons) + 0.6), sharex=True,
-                             squeeze=False)
-    for ax, label, c in zip(axes[:, 0], labels, comparisons):
-        ax.plot(c.time, c.measured, "k", lw=0.8, label="measured (test record)")
-        if c.free_run is not None:
-            ax.plot(c.time, c.free_run, "r", lw=1.0, label="free run of the model")
-            ax.set_title(f"{label}: fit {c.fit_percent:.1f} % (the noise allows {c.ceiling_percent:.1f} %)",
-                         fontsize=9)
-        else:
-            ax.set_title(f"{label}: {c.message}", fontsize=9)
-        ax.set_ylabel("output")
+    """One row of panels per model (``labels``: start, then each added effect), one column
+    per coordinate (``comparisons``: a list of coordinate -> comparison): the measured
+    output and the model's free run over the same record, the fit in the panel's title, so
+    that where each effect mattered shows in the response itself.  These are the
+    diagnosis's own models and comparisons (from the record's first state, before any
+    output-error polish), which the figure's title says."""
+    coords = list(comparisons[0])
+    fig, axes = plt.subplots(len(comparisons), len(coords), figsize=(8 * len(coords) ** 0.5, 1.9 * len(comparisons)
+                                                                      + 0.6), sharex=True, squeeze=False)
+    for row, label, compared in zip(axes, labels, comparisons):
+        for ax, coord in zip(row, coords):
+            c = compared[coord]
+            ax.plot(c.time, c.measured, "k", lw=0.8, label="measured (test record)")
+            name = label if len(coords) == 1 else f"{label}, {coord}"
+            if c.free_run is not None:
+                ax.plot(c.time, c.free_run, "r", lw=1.0, label="free run of the model")
+                ax.set_title(f"{name}: fit {c.fit_percent:.1f} % (the noise allows {c.ceiling_percent:.1f} %)",
+                             fontsize=9)
+            else:
+                ax.set_title(f"{name}: {c.message}", fontsize=9)
+            ax.set_ylabel("output" if len(coords) == 1 else coord)
     axes[0, 0].legend(fontsize=8, loc="lower left", ncol=2)
-    axes[-1, 0].set_xlabel("time [s]")
+    for ax in axes[-1]:
+        ax.set_xlabel("time [s]")
     fig.suptitle("the diagnosis's models, each added effect in turn (free run from the record's first state, "
                  "before the output-error polish)", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
@@ -157,19 +163,22 @@ def signature_figure(eff, coordinate: str = "x", span: float = 2.0):
 
 def residual_figure(res, bins: int = 21, title: str | None = None):
     """The equation error in time and binned against position and velocity (mean and spread
-    per bin)."""
-    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+    per bin): of one equation (``res``), or a row of panels for each equation (``res``:
+    equation -> its residuals)."""
+    views = res if isinstance(res, dict) else {"": res}
+    fig, axes = plt.subplots(len(views), 3, figsize=(12, 3.5 * len(views)), squeeze=False)
     if title:
         fig.suptitle(title, fontsize=10)
-    axes[0].plot(res.time, res.residual, "k", lw=0.5)
-    axes[0].set_xlabel("time [s]")
-    axes[0].set_ylabel("equation error (force units)")
-    for ax, against, label in ((axes[1], "position", "x"), (axes[2], "velocity", "x'")):
-        b = res.binned(against, bins)
-        ax.errorbar(b["center"], b["mean"], yerr=b["std"], fmt="ko-", ms=3)
-        ax.axhline(0, color="gray", lw=0.6)
-        ax.set_xlabel(label)
-    fig.tight_layout(rect=(0, 0, 1, 0.93) if title else (0, 0, 1, 1))
+    for row, (label, view) in zip(axes, views.items()):
+        row[0].plot(view.time, view.residual, "k", lw=0.5)
+        row[0].set_xlabel("time [s]")
+        row[0].set_ylabel("equation error (force units)" if not label else f"{label}: equation error")
+        for ax, against, symbol in ((row[1], "position", label or "x"), (row[2], "velocity", (label or "x") + "'")):
+            b = view.binned(against, bins)
+            ax.errorbar(b["center"], b["mean"], yerr=b["std"], fmt="ko-", ms=3)
+            ax.axhline(0, color="gray", lw=0.6)
+            ax.set_xlabel(symbol)
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.07 / len(views)) if title else (0, 0, 1, 1))
     return fig
 
 

@@ -58,8 +58,8 @@ print(result.summary())
 rows = []
 for seed in range(1, seeds + 1):
     run = cvxid.run(with_seed(spec, seed))
-    equation_error = run.refinement.result if run.refinement else None
-    row = {"seed": seed, "added": ", ".join(s["added"] for s in run.refinement.steps) if run.refinement else ""}
+    equation_error = run.refinement.system if run.refinement else None
+    row = {"seed": seed, "added": ", ".join(s.added for s in run.refinement.steps) if run.refinement else ""}
     if equation_error is not None:
         row["tau EE %"] = 100 * (equation_error.tau / 0.2 - 1)
         row["k_s EE %"] = 100 * (-equation_error.models["theta"].coefficients["alpha"] / 1.3 - 1)

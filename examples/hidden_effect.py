@@ -22,7 +22,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 
 import cvxid  # noqa: E402
-from cvxid.diagnosis.equation import refit  # noqa: E402
+from cvxid.diagnosis.refine import refit  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 OUT = Path(os.environ.get("OUT", "out/hidden_effect"))

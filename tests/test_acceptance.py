@@ -91,7 +91,7 @@ def test_a_spurious_second_effect_is_refused(tmp_path):
 
 
 def test_the_loop_says_where_it_stopped_and_why():
-    from cvxid.diagnosis.equation import refine, refit
+    from cvxid.diagnosis.refine import refine, refit
 
     from .test_diagnostics import experiments, linear_model
 

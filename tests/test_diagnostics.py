@@ -9,18 +9,11 @@ from matplotlib import pyplot as plt
 
 from cvxid import CvxidError, CvxidWarning
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.equation import (
-    Diagnosis,
-    Refinement,
-    compare,
-    diagnose,
-    k_step_prediction,
-    k_step_samples,
-    refine,
-    refit,
-    residuals,
-    with_effect,
-)
+from cvxid.diagnosis.candidates import with_effect
+from cvxid.diagnosis.compare import compare, k_step_prediction, k_step_samples
+from cvxid.diagnosis.ranking import Diagnosis, diagnose
+from cvxid.diagnosis.refine import Refinement, refine, refit
+from cvxid.diagnosis.residuals import residuals
 from cvxid.identified import IdentifiedModel
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
@@ -77,8 +70,8 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     assert step.fit_after > {"coulomb": 97.5, "cubic_stiffness": 99.0, "quadratic_damping": 98.8}[hidden]
     assert hidden in {g for group in dx.groups for g in group}
     # the figures a user decides by: the free runs before and after, from the loop's own comparisons
-    assert [c.fit_percent for c in result.comparisons] == [step.fit_before, step.fit_after]
-    assert result.start is start and result.labels == ["start", f"+ {hidden}"]
+    assert [c["x"].fit_percent for c in result.comparisons] == [step.fit_before, step.fit_after]
+    assert result.start.single is start and result.labels == ["start", f"+ {hidden}"]
     responses = result.plot_responses()
     assert [ax.get_title().split(":")[0] for ax in responses.axes] == ["start", f"+ {hidden}"]
     history = result.plot().axes[0]

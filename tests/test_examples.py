@@ -28,7 +28,7 @@ def test_hidden_effect_story(monkeypatch, tmp_path, capsys):
     # the free-run fit rises from 79 % to 98 % (measured)
     steps = [line.split() for line in out.split("Refinement")[1].splitlines() if line.startswith("coulomb ")]
     assert len(steps) == 1
-    before, after, fit_before, fit_after = map(float, steps[0][-4:])
+    before, after, fit_before, fit_after = map(float, steps[0][-5:-1])  # (then the delay after the step)
     assert before > 50 * after and fit_before < 85 and fit_after > 95
     for figure in ("1_linear_fit", "2_residual_vs_velocity", "3_error_falls", "4_final_fit"):
         assert (tmp_path / f"{figure}.png").stat().st_size > 10_000  # a drawn figure, not an empty file

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cvxid import CvxidError
-from cvxid.diagnosis.equation import refit
+from cvxid.diagnosis.refine import refit
 from cvxid.identified import IdentifiedModel
 from cvxid.simulate import simulate
 
@@ -18,7 +18,7 @@ from .test_diagnostics import experiments, linear_model
 def model():
     train, _ = experiments("cubic_stiffness")
     spec = linear_model()
-    from cvxid.diagnosis.equation import with_effect
+    from cvxid.diagnosis.candidates import with_effect
 
     return refit(with_effect(spec, "cubic_stiffness"), train, ["x''", "x", "x'", "x^3"], None)
 

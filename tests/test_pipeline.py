@@ -202,7 +202,7 @@ def test_one_run_transforms_each_record_once(monkeypatch):
     regression builder), the delay is profiled once for the model and once for each effect
     tried (the friction, then the best of the next diagnosis, which the acceptance rule
     refuses) and a handful of cvxpy Problems are built (233 before)."""
-    import cvxid.diagnosis.equation as diagnosis_module
+    import cvxid.diagnosis.refine as diagnosis_module
     import cvxid.identify.system as system_module
     from cvxid.identify.problem import Problem
     from cvxid.regression.builder import RegressionBuilder

@@ -94,8 +94,7 @@ def write_report(result, out) -> tuple[Path, str | None]:
     :meth:`~cvxid.identified.IdentifiedModel.load`) and the figures (``test_fit``, and when
     the run made them ``path`` (when it selected: a path of listed terms alone is flat),
     ``delay_profile``, ``diagnosis``, ``refinement``,
-    ``orders``; when the one-equation diagnosis added an effect ``responses`` and
-    ``residuals``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
+    ``orders``; when the diagnosis added an effect ``responses`` and ``residuals``) into ``out``, each file atomically, ``result.json`` last.  Returns its path
     and what an earlier run had left there (:func:`earlier_run`), or None."""
     import matplotlib.pyplot as plt  # imported when a report is written, not with cvxid
 
@@ -106,7 +105,7 @@ def write_report(result, out) -> tuple[Path, str | None]:
     replaced = f"'{earlier['name']}'" if earlier else None
     data = result.to_dict()
     system = result.system
-    added = not result.coupled and result.refinement is not None and bool(result.refinement.steps)
+    added = result.refinement is not None and bool(result.refinement.steps)
     plotters = {
         "path": (lambda: path_figure(result.path, result.lam))
         if result.path is not None and (result.path.problem.penalties > 0).any() else None,  # (flat without)

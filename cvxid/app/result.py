@@ -15,6 +15,8 @@ import pandas as pd
 
 from cvxid.app.report import records
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.ranking import Diagnosis
+from cvxid.diagnosis.refine import Refinement
 from cvxid.errors import CvxidError
 from cvxid.metrics import relative_error_percent
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
@@ -50,8 +52,8 @@ class RunResult:
     order_search: OrderSearch | None = None
     tau: dict | None = None
     polish: PolishResult | None = None
-    diagnosis: object | None = None  # Diagnosis (one equation)
-    refinement: object | None = None  # Refinement or JointRefinement
+    diagnosis: Diagnosis | None = None  # the first ranking of the missing effects
+    refinement: Refinement | None = None  # the add-an-effect loop
     velocity_scores: dict | None = None
     stepwise: Stepwise | None = None
     lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
@@ -145,6 +147,12 @@ class RunResult:
                 "intervals": {name: list(self.polish.physical_interval(name)) for name in self.polish.parameters},
                 "seconds": self.polish.seconds,
             },
+            "diagnosis": None if self.diagnosis is None else {
+                "ranking": self.diagnosis.records(),
+                "groups": self.diagnosis.groups,
+            },
+            "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
+            "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
         }
         return common | (self._coupled_dict() if self.coupled else self._single_dict())
 
@@ -174,12 +182,6 @@ class RunResult:
             "velocity_scores": self.velocity_scores,
             "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
             "solver": self.problem.solver,
-            "diagnosis": None if self.diagnosis is None else {
-                "ranking": self.diagnosis.records(),
-                "groups": self.diagnosis.groups,
-            },
-            "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
-            "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
             "simulation_diagnosis": None if self.simulation_refinement is None else {
                 "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
                 if self.simulation_refinement.rankings else [],
@@ -223,11 +225,6 @@ class RunResult:
             "test_k_step_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["k_step_fit_percent"].items()},
             "lambda": self.lam,
             "solver": self.spec.fit.solver,
-            "diagnosis": None if not (self.refinement and self.refinement.rankings) else {
-                "ranking": self.refinement.rankings[0].reset_index().to_dict(orient="records"),
-            },
-            "refinement": None if self.refinement is None else self.refinement.steps,
-            "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
             "loss": self.spec.fit.loss,
         }
 
@@ -291,8 +288,9 @@ class RunResult:
         if self.polish is not None:
             lines.append(f"  {self.polish.summary()}")
         lines += ["", self.table().to_string(float_format=lambda v: f"{v:.5g}"), ""]
-        if self.refinement is not None:
-            lines += [repr(self.refinement), ""]
+        for part in (self.order_search, self.diagnosis, self.refinement):
+            if part is not None:
+                lines += [repr(part), ""]
         return "\n".join(lines + self._footer())
 
     def _footer(self) -> list[str]:

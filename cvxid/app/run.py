@@ -23,15 +23,10 @@ import pandas as pd
 
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.coupled import refine_joint
+from cvxid.diagnosis.compare import compare, k_step_predictions, k_step_samples
+from cvxid.diagnosis.ranking import diagnose
+from cvxid.diagnosis.refine import refine
 from cvxid.diagnosis.simulation import refine_by_simulation
-from cvxid.diagnosis.equation import (
-    compare,
-    diagnose,
-    k_step_predictions,
-    k_step_samples,
-    refine,
-)
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
@@ -407,35 +402,27 @@ def _compare(out: RunResult):
 
 
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):
-    """Diagnose → add → refit (one equation: :func:`~cvxid.diagnosis.equation.refine`;
-    coupled: :func:`~cvxid.diagnosis.coupled.refine_joint`), on the run's own transformed data."""
-    settings, window = spec.diagnose, rows.window
+    """Diagnose → add → refit (:func:`~cvxid.diagnosis.refine.refine`, the same loop for
+    every :math:`N`), on the run's own transformed data; the library is selected anew beside
+    each added effect by the run's own selection."""
+    settings, fit = spec.diagnose, spec.fit
     steps = settings.max_steps if settings.refine else 0
-    if out.coupled:
-        out.refinement = refine_joint(out.system, out.train, out.test, settings.candidates,
-                                      steps, velocity, window, (rows, test_rows))
-        out.system = out.refinement.result
-        out.tau = {"estimate": out.system.tau, "interval": out.system.info.get("tau_interval"),
-                   "method": "joint profile"}
-        return
-    ((label, train_rows),) = rows.builders.items()
-    builders = (train_rows, test_rows.builders[label])
-    model = out.model
-    fit = spec.fit
     selection = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability) \
         if fit.estimator in SELECTING else None
-    out.refinement = refine(model, out.train, out.test, settings.candidates, steps,
-                            velocity, window, builders=builders, selection=selection)
-    model = out.refinement.model
+    out.refinement = refine(out.system, out.train, out.test, settings.candidates, steps, velocity, rows.window,
+                            builders=(rows, test_rows), selection=selection)
+    system = out.refinement.system
     out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(
-        model, out.train, out.test, settings.candidates, velocity, window, builders=builders)
-    if out.refinement.steps and model.spec.delay is not None and model.spec.delay.exact:
-        out.tau = dict(out.tau, estimate=model.tau, interval=None, method="profile (after refinement)")
-    if out.refinement.steps and model.spec.input_delay is not None and model.spec.input_delay.free:
-        out.input_delay = {"estimate": model.spec.input_tau, "interval": None, "method": "profile (after refinement)"}
-    out.system = IdentifiedSystem.of(model)
-    out.problem = Problem.from_regression(rows.at(model.tau, out.system.specs), model.spec.nonnegative,
-                                          spec.fit.solver)
+        system, out.train, out.test, settings.candidates, velocity, rows.window, builders=(rows, test_rows))
+    if out.refinement.steps and system.spec.exact:
+        out.tau = dict(out.tau, estimate=system.tau, interval=system.info.get("tau_interval"),
+                       method="profile (after refinement)")
+    late = [s.input_delay for s in system.specs.values() if s.input_delay is not None and s.input_delay.free]
+    if out.refinement.steps and late:
+        out.input_delay = {"estimate": late[0].value, "interval": None, "method": "profile (after refinement)"}
+    out.system = system
+    out.problem = Problem.from_regression(rows.at(system.tau, system.specs), system.spec.nonnegative,
+                                          spec.fit.solver, ties=system.ties)
 
 
 COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, grid=0, final_iterations=10)
@@ -564,7 +551,7 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
 
 def refine_spec(spec: ProblemSpec | str | FilePath, **settings):
     """Run ``spec`` with its diagnosis loop on (``[diagnose] refine = true``); the loop's
-    :class:`~cvxid.diagnosis.equation.Refinement` (steps, diagnoses, final model, ``plot()``)."""
+    :class:`~cvxid.diagnosis.refine.Refinement` (steps, diagnoses, final model, ``plot()``)."""
     from cvxid.spec.problem import DiagnoseSettings
 
     if not isinstance(spec, ProblemSpec):

@@ -1,6 +1,6 @@
 r"""The diagnosis by simulation error, after the output-error polish.
 
-The equation-error diagnosis (:mod:`cvxid.diagnosis.equation`) sees what its regression
+The equation-error diagnosis (:mod:`cvxid.diagnosis.ranking`) sees what its regression
 sees; an effect whose force is small beside the noise of an estimated velocity (an
 amplitude-dependent damping, say) can be plain in the free-run simulation and invisible
 there.  This stage starts from the polished model :math:`\hat\theta` and asks, for each
@@ -41,7 +41,8 @@ import pandas as pd
 from scipy.stats import chi2
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.equation import compare, default_candidates, missing, with_effect, with_input_delay
+from cvxid.diagnosis.candidates import default_candidates, missing, with_effect, with_input_delay
+from cvxid.diagnosis.compare import compare
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, linearisation, output_error, residual

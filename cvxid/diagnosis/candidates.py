@@ -1,0 +1,146 @@
+r"""The candidate effects a diagnosis offers a system of :math:`N \ge 1` equations.
+
+A candidate is a term added, with a coefficient of its own, to every equation that lacks
+it.  A catalogue effect (:data:`~cvxid.model.library.CATALOGUE`) is built for each
+coordinate: in one equation it keeps its name (``"coulomb"``: ``sign(x')``); in a system of
+several each coordinate's is a candidate of its own (``"coulomb(theta)"``:
+``sign(theta')`` in every equation), unless every coordinate's is the same term (``"offset"``).  A dissipative or restoring effect's sign constraint
+(:math:`c \ge 0`) holds in its own coordinate's equation only: there it opposes the
+coordinate's motion, while in the equations it couples into its sign is the coupling's (the
+flexible joint's motor friction is :math:`+f_c` in the motor's equation and :math:`-f_c` in
+the link's).  A spec's own effects (``[diagnose.effects]``) and plain term names are
+candidates as written; a declared effect's sign holds in one equation's model only.
+
+Two names are parameters estimated again, not terms, and are offered to one equation:
+``"delay"`` (an exact delay profiled again; scored by the column
+:math:`\partial_\tau\, x(t-\tau) = -\dot x(t-\tau)`) and ``"input_delay"`` (the input's delay
+estimated; scored by the input's rate :math:`\dot u`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Mapping, Sequence
+
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.model.equation import ModelSpec
+from cvxid.model.input_delay import InputDelay, record_bound
+from cvxid.model.library import CATALOGUE, PARAMETERS, resolve_term
+from cvxid.model.terms import DelayedSignal, InputRate, Term
+
+
+@dataclass(frozen=True)
+class Candidate:
+    """A named term and the equations (labels) it joins; ``signed``: those where its
+    coefficient is constrained to be nonnegative."""
+
+    name: str
+    term: Term
+    equations: tuple[str, ...]
+    signed: tuple[str, ...] = ()
+
+    @property
+    def reestimated(self) -> bool:
+        """Whether the candidate is a parameter estimated again (a delay), not a term added."""
+        return self.name in PARAMETERS
+
+
+def _specs(model: ModelSpec | Mapping[str, ModelSpec]) -> dict[str, ModelSpec]:
+    return {model.coordinate: model} if isinstance(model, ModelSpec) else dict(model)
+
+
+def default_candidates(model: ModelSpec | Mapping[str, ModelSpec]) -> list[str]:
+    """The catalogue and the spec's own effects minus what the model already has; for one
+    equation also ``delay`` (an exact delay) and ``input_delay``."""
+    specs = _specs(model)
+    first = next(iter(specs.values()))
+    if len(specs) == 1:
+        exact = first.delay is not None and first.delay.exact
+        names = [n for n in {**CATALOGUE, **first.effects} if n != "delay" or exact]
+    else:
+        names = [n for n in {**CATALOGUE, **first.effects} if n not in PARAMETERS]
+    return [n for n in names if missing(specs, n)]
+
+
+def missing(model: ModelSpec | Mapping[str, ModelSpec], name: str) -> bool:
+    """Whether the effect or term ``name`` is missing from an equation of ``model`` (an input
+    delay is missing unless the spec has one, estimated or known)."""
+    return bool(candidates(model, [name]))
+
+
+def candidates(model: ModelSpec | Mapping[str, ModelSpec], names: Sequence[str]) -> dict[str, Candidate]:
+    """The candidates the ``names`` (catalogue effects, the spec's own effects, term names,
+    ``delay``, ``input_delay``) give ``model`` (one equation's spec, or specs by label), by
+    candidate name, leaving out what every equation already has."""
+    specs = _specs(model)
+    labels = list(specs)
+    first = specs[labels[0]]
+    label_of = {s.coordinate: label for label, s in specs.items()}
+    coords = tuple(label_of)
+    declared = first.effects
+    out: dict[str, Candidate] = {}
+    for name in names:
+        if name in PARAMETERS:
+            found = _parameter(specs, name)
+            if found is not None:
+                out[name] = found
+            continue
+        if name in declared:
+            eff = declared[name]
+            built = {name: (eff.build(coords[0]), labels[0] if eff.nonnegative and len(specs) == 1 else None)}
+        elif name in CATALOGUE:
+            eff = CATALOGUE[name]
+            terms = {c: eff.build(c) for c in coords}
+            shared = len({t.name for t in terms.values()}) == 1  # (an offset is every coordinate's)
+            signs = eff.nonnegative and (len(coords) == 1 or not shared)  # (a shared term has no own equation)
+            built = {(name if shared else f"{name}({c})"): (t, label_of[c] if signs else None) for c, t in terms.items()}
+        else:
+            built = {name: (resolve_term(name, coords, declared), None)}
+        for label, (term, own) in built.items():
+            lacking = tuple(lb for lb, s in specs.items() if term.name not in s.column_names)
+            if lacking:
+                out[label] = Candidate(label, term, lacking, (own,) if own in lacking else ())
+    return out
+
+
+def _parameter(specs: dict[str, ModelSpec], name: str) -> Candidate | None:
+    """The ``delay`` or ``input_delay`` candidate of one equation (None when it has an input
+    delay already)."""
+    if len(specs) > 1:
+        raise CvxidError(f"'{name}' is estimated again in one-equation models only; a coupled system's shared delay "
+                         "is profiled already")
+    ((label, spec),) = specs.items()
+    if name == "input_delay":
+        return Candidate(name, InputRate(spec.input), (label,)) if spec.input_delay is None else None
+    if not (spec.delay is not None and spec.delay.exact):
+        raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
+    return Candidate(name, DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1), (label,))
+
+
+def with_candidate(specs: Mapping[str, ModelSpec], candidate: Candidate) -> dict[str, ModelSpec]:
+    """``specs`` with the candidate's term in each equation it joins, its sign constraint
+    where it has one."""
+    if candidate.reestimated:
+        raise CvxidError(f"'{candidate.name}' is not added but estimated again")
+    return {label: replace(s, library=s.library + [candidate.term],
+                           nonnegative=s.nonnegative + ((candidate.term.name,) if label in candidate.signed else ()))
+            if label in candidate.equations else s for label, s in specs.items()}
+
+
+def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
+    """``spec`` with a catalogue effect (or a term) added, its sign constraint included."""
+    if name == "delay":
+        raise CvxidError("the delay is not added but estimated again: refit the model (refit() profiles tau)")
+    if name == "input_delay":
+        raise CvxidError("an input delay is not a term: give the spec one to estimate (with_input_delay)")
+    found = candidates(spec, [name])
+    if not found:
+        raise CvxidError(f"the model already has {resolve_term(name, (spec.coordinate,), spec.effects).name} ({name})")
+    return with_candidate({spec.coordinate: spec}, found[name])[spec.coordinate]
+
+
+def with_input_delay(spec: ModelSpec, train: Experiment) -> ModelSpec:
+    """``spec`` with an input delay to estimate, from 0 to a quarter period of the training
+    output's band edge (:func:`~cvxid.model.input_delay.default_bound`)."""
+    return replace(spec, input_delay=InputDelay(0.0, 0.0, record_bound([train.output(spec.coordinate)], train.dt)))

@@ -1,0 +1,267 @@
+r"""Compare a model with measurements: free-run and k-step-ahead simulation against the
+measured output of every coordinate.
+
+The fit of a simulated output :math:`\hat y` to the measured :math:`y` is
+
+.. math::
+
+    \text{fit} = 100\,\Big(1 - \frac{\|y-\hat y\|}{\|y-\bar y\|}\Big)\ \%,
+    \qquad \text{NRMSE} = \frac{\|y-\hat y\|}{\|y-\bar y\|}.
+
+:func:`compare` is one equation's :class:`Comparison`; :func:`compare_system` gives one
+:class:`Comparison` per coordinate of a system of :math:`N \ge 1` equations, from one
+joint free run and one batch of k-step-ahead windows (for :math:`N = 1` it is
+:func:`compare`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy.interpolate import CubicSpline
+from scipy.signal import savgol_filter
+
+from cvxid.data.experiment import Experiment
+from cvxid.errors import CvxidError
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.initial_state import check_initial_state, free_run
+from cvxid.metrics import fit_percent, noise_ceiling_percent
+from cvxid.regression.history import start_index
+from cvxid.regression.velocity import savgol_window
+from cvxid.simulate import SimulationDiverged, integrate
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Simulated against measured output.
+
+    ``free_run`` starts from ``initial_state`` (position, velocity), found the way
+    ``initial`` says: ``"estimated"`` (least squares over the compared record,
+    :mod:`cvxid.initial_state`), ``"record"`` (the record's smoothed first
+    state) or ``"given"``; ``record_fit_percent`` is the fit from the record's own start,
+    kept beside an estimated one; ``ceiling_percent`` is the fit a perfect model would reach
+    under the record's measurement noise (:func:`~cvxid.metrics.noise_ceiling_percent`)."""
+
+    time: np.ndarray
+    measured: np.ndarray
+    free_run: np.ndarray | None
+    fit_percent: float | None
+    nrmse: float | None
+    k_step: int
+    k_step_fit_percent: float | None
+    message: str = ""
+    initial: str = "record"
+    initial_state: tuple[float, float] | None = None
+    record_fit_percent: float | None = None
+    record_free_run: np.ndarray | None = None
+    ceiling_percent: float | None = None
+
+    @property
+    def rms(self) -> float | None:
+        """Root-mean-square error of the free run over the samples it covers (the output's
+        units: the benchmarks' "simulation RMSE")."""
+        if self.free_run is None:
+            return None
+        covered = np.isfinite(self.free_run)
+        return float(np.sqrt(np.mean((self.free_run[covered] - self.measured[covered]) ** 2)))
+
+    def table(self) -> pd.DataFrame:
+        rows = {"free run": [self.fit_percent, self.nrmse]}
+        if self.initial == "estimated":
+            rows["free run from the record's start"] = [self.record_fit_percent, None]
+        rows[f"{self.k_step}-step ahead"] = [self.k_step_fit_percent, None]
+        return pd.DataFrame.from_dict(rows, orient="index", columns=["fit %", "NRMSE"])
+
+    def title(self) -> str:
+        """One line: the free-run fit and where its simulation started."""
+        if self.fit_percent is None:
+            return "free run: " + self.message
+        text = f"free-run fit {self.fit_percent:.1f} % (the noise allows {self.ceiling_percent:.1f} %; initial state {self.initial}"
+        if self.initial == "estimated" and self.record_fit_percent is not None:
+            text += f"; {self.record_fit_percent:.1f} % from the record's own start"
+        return text + ")"
+
+    def plot(self):
+        from cvxid.plots import comparison_figure
+
+        if self.free_run is None:
+            raise CvxidError(f"nothing to plot: {self.message}")
+        return comparison_figure(self.time, self.measured, self.free_run, self.title(),
+                                 self.record_free_run if self.initial == "estimated" else None)
+
+    def __repr__(self) -> str:
+        text = (f"Comparison (free run from the {self.initial} initial state)\n"
+                f"{self.table().to_string(float_format=lambda v: f'{v:.2f}')}")
+        return text + (f"\n  {self.message}" if self.message else "")
+
+
+def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None = None,
+            x0: float | None = None, v0: float | None = None, initial: str = "estimated") -> Comparison:
+    """Free-run and ``k_step``-ahead fit of ``model`` on ``experiment`` (k-step default:
+    a tenth of a second of samples).  The free run starts where the simulation starts (at
+    the record's start, or with the measured history at :math:`t_0 + \\tau_{\\max}`; the
+    comparison covers the simulated samples only) from the state ``(x0, v0)`` when given,
+    else the state ``initial`` names: ``"estimated"`` (least squares over the compared
+    record, as MATLAB's ``compare`` does; the fit from the record's own start is kept
+    beside it) or ``"record"`` (the record's smoothed first state).  An identified system
+    of one equation is its model; a coupled one compares with its own
+    :meth:`~cvxid.identified.IdentifiedSystem.compare`."""
+    if isinstance(model, IdentifiedSystem):
+        if model.single is None:
+            raise CvxidError(f"compare takes one equation's model; this system has {len(model.models)} coupled "
+                             "equations: use system.compare(experiment), the fit of every coordinate")
+        model = model.single
+    check_initial_state(initial)
+    experiment, note = longest_stretch(experiment)
+    y = experiment.output(model.spec.coordinate)
+    k = k_step or k_step_samples(experiment.dt)
+    start = start_index(experiment, model.spec.delay)
+    coord, measured = model.spec.coordinate, y[start:]
+    given = x0 is not None or v0 is not None
+    initial = "given" if given else initial
+    record_fit = record_sim = state = None
+    try:
+        run = model.simulator(experiment)
+        guess = model.initial_state(experiment)
+        own = (guess[0] if x0 is None else x0, guess[1] if v0 is None else v0)
+        starts, sims, record = free_run(lambda s: {coord: run(*s[coord])[0][start:]}, {coord: measured},
+                                        {coord: own}, "record" if given else initial)
+        state, sim = starts[coord], sims[coord]
+        if record is not None:
+            record_sim = record[coord]
+            record_fit = fit_percent(measured, record_sim)
+        free, nrmse, message = fit_percent(measured, sim), float(np.linalg.norm(measured - sim)
+                                                                / np.linalg.norm(measured - measured.mean())), ""
+    except SimulationDiverged as exc:
+        sim, free, nrmse, message = None, None, None, f"free run: {exc}"
+    try:
+        ahead = fit_percent(y, k_step_prediction(model, experiment, k))
+    except SimulationDiverged as exc:
+        ahead = None
+        message = (message + "; " if message else "") + f"k-step: {exc}"
+    message = "; ".join(m for m in (note, message) if m)
+    return Comparison(experiment.time[start:], measured, sim, free, nrmse, k, ahead, message,
+                      initial, state, record_fit, record_sim, noise_ceiling_percent(measured))
+
+
+def longest_stretch(experiment: Experiment) -> tuple[Experiment, str]:
+    """A record with gaps (NaN samples) is compared on its longest gap-free stretch (a free
+    run cannot cross a gap); the note says which."""
+    segments = experiment.segments()
+    if len(segments) == 1 and segments[0] is experiment:
+        return experiment, ""
+    longest = max(segments, key=lambda s: s.n)
+    return longest, f"compared on the longest gap-free stretch, {longest.name} ({longest.n} of {experiment.n} samples)"
+
+
+K_STEP_SECONDS = 0.1
+"""The horizon of the k-step-ahead check (a tenth of a second of samples, at least 2)."""
+
+
+def k_step_samples(dt: float) -> int:
+    return max(2, int(round(K_STEP_SECONDS / dt)))
+
+
+def k_step_prediction(model: IdentifiedModel, experiment: Experiment, k: int) -> np.ndarray:
+    """Each window of ``k`` samples simulated from the measured (smoothed) state at its
+    start, with the delayed feedback taken from the measured output."""
+    return k_step_predictions(IdentifiedSystem.of(model), experiment, k)[model.spec.coordinate]
+
+
+def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int) -> dict[str, np.ndarray]:
+    """:func:`k_step_prediction` of every coordinate of a system of N >= 1 equations: the
+    windows run as one batch through the integrator, each from the smoothed measured states
+    at its start, every equation driven by its input and its feedback read from the
+    measured (smoothed) delayed coordinate."""
+    t, coords = experiment.time, system.coordinates
+    smooth, vel = {}, {}
+    for c in coords:
+        y = experiment.output(c)
+        smooth[c] = savgol_filter(y, savgol_window(y), 3, mode="interp")
+        vel[c] = savgol_filter(y, savgol_window(y), 3, deriv=1, delta=experiment.dt, mode="interp")
+    numeric = system.system()
+    d = numeric.delayed
+    feedback = measured_delayed(numeric.tau, numeric.history, numeric.derivative, t, smooth[d], vel[d])
+    first = int(np.argmax(np.isfinite(feedback)))  # a measured history: predictions start where it is known
+    splines = [CubicSpline(t[first:], (m.spec.received_input(experiment) + eq.delay_gain * feedback)[first:])
+               for m, eq in zip(system.models.values(), numeric.equations)]
+    starts = np.arange(first, len(t) - 1, k)
+    local = t[: k + 1] - t[0]
+    B, C = starts.size, len(coords)
+    coefs, mass, _ = numeric.arrays()
+
+    def forces(fine: np.ndarray, h: float) -> np.ndarray:
+        at = np.minimum(t[starts][None, :] + fine[:, None], t[-1])  # the last window's unused tail: no extrapolation
+        return np.stack([spline(at) for spline in splines], axis=1)  # (S, C, B)
+
+    X, _ = integrate(local, forces, coords, [eq.terms for eq in numeric.equations], np.repeat(coefs, B, axis=1),
+                     np.repeat(mass, B, axis=1), np.zeros((C, B)), np.zeros(B),
+                     np.array([smooth[c][starts] for c in coords]), np.array([vel[c][starts] for c in coords]), 0)
+    out = {}
+    for j, c in enumerate(coords):
+        pred = np.full_like(t, np.nan)
+        pred[first] = smooth[c][first]
+        for b, s in enumerate(starts):
+            stop = min(s + k, len(t) - 1)
+            pred[s + 1 : stop + 1] = X[1 : stop - s + 1, j, b]
+        out[c] = pred
+    return out
+
+
+def measured_delayed(tau: float, history: str, derivative: int, t: np.ndarray, x: np.ndarray,
+                     v: np.ndarray) -> np.ndarray:
+    r"""The delayed signal :math:`x^{(q)}(t-\tau)` read from (smoothed) measurements; before
+    the record NaN (``history = "measured"``: unknown), zero, or the first sample
+    (``"initial"``)."""
+    lagged = np.interp(t - tau, t, x if derivative == 0 else v)
+    lagged[t - t[0] < tau - 1e-9 * (t[1] - t[0])] = {"measured": np.nan, "zero": 0.0}.get(history, x[0])
+    return lagged
+
+
+def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Experiment, k_step: int | None = None,
+                   initial: str = "estimated") -> dict[str, Comparison]:
+    """:func:`compare` for every coordinate of a system of :math:`N \\ge 1` equations, by
+    coordinate: one free run of all coordinates together from the start ``initial`` names
+    (estimated jointly, :mod:`cvxid.initial_state`), and the k-step-ahead windows of
+    :func:`k_step_predictions`.  For one equation it is :func:`compare`."""
+    if isinstance(system, IdentifiedModel):
+        system = IdentifiedSystem.of(system)
+    if system.single is not None:
+        model = system.single
+        return {model.spec.coordinate: compare(model, experiment, k_step, initial=initial)}
+    check_initial_state(initial)
+    experiment, note = longest_stretch(experiment)
+    k = k_step or k_step_samples(experiment.dt)
+    coords = system.coordinates
+    start = start_index(experiment, next(iter(system.specs.values())).delay)
+    measured = {c: experiment.output(c)[start:] for c in coords}
+    run, own, message = system.simulator(experiment), system.initial_state(experiment), ""
+    state, sims, record = own, None, None
+    try:
+        state, sims, record = free_run(lambda s: {c: v[start:] for c, v in run(s).items()}, measured, own, initial)
+    except SimulationDiverged as exc:
+        message = f"free run: {exc}"
+    try:
+        ahead = k_step_predictions(system, experiment, k)
+    except SimulationDiverged as exc:
+        ahead = None
+        message = (message + "; " if message else "") + f"k-step: {exc}"
+    message = "; ".join(m for m in (note, message) if m)
+    out = {}
+    for c in coords:
+        y, sim = measured[c], None if sims is None else sims[c]
+        nrmse = None if sim is None else float(np.linalg.norm(y - sim) / np.linalg.norm(y - y.mean()))
+        out[c] = Comparison(experiment.time[start:], y, sim, None if sim is None else fit_percent(y, sim), nrmse, k,
+                            None if ahead is None else fit_percent(experiment.output(c), ahead[c]), message, initial,
+                            state[c], None if record is None else fit_percent(y, record[c]),
+                            None if record is None else record[c], noise_ceiling_percent(y))
+    return out
+
+
+def mean_fit(comparisons: dict[str, Comparison], which: str = "fit_percent") -> float | None:
+    """The mean over coordinates of a fit (``"fit_percent"``, the free run's, or
+    ``"k_step_fit_percent"``); None when any coordinate's simulation diverged."""
+    fits = [getattr(c, which) for c in comparisons.values()]
+    return None if any(f is None for f in fits) else float(np.mean(fits))

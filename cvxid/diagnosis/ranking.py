@@ -1,0 +1,214 @@
+r"""Name the missing effect: candidates ranked by the share of the residual they explain.
+
+Each candidate's columns (one per equation it joins, :mod:`cvxid.diagnosis.candidates`)
+go through the same algebraic operation as the model's, are orthogonalised against the
+model's columns :math:`Q` and scored two ways:
+
+* the **error-reduction ratio**, the share of the model's equation-error residual
+  :math:`r` the candidate explains,
+
+  .. math::
+
+      \mathrm{ERR} = \frac{r^T G_\perp (G_\perp^T G_\perp)^{+} G_\perp^T r}{r^T r},
+      \qquad G_\perp = (I - QQ^T)\,G,
+
+  for one column :math:`g` the familiar :math:`(g_\perp^T r)^2 / (g_\perp^T g_\perp\; r^T r)`;
+* the **validation ratio**, the test record's equation-error MSE of the model refitted
+  without the candidate over that with it (above 1: it helps on data the fit did not see).
+
+Candidates whose orthogonalised contributions :math:`G_\perp\beta` (a single column: the
+column itself) correlate above :data:`COLLINEAR` form one group: the equation error cannot
+tell them apart, and the refinement lets a simulation decide
+(:mod:`cvxid.diagnosis.refine`).  The same code ranks for one equation and for a system of
+several, whose regressions are stacked.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates
+from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.identify.problem import Problem
+from cvxid.progress import progress
+from cvxid.regression.builder import SystemBuilder
+
+COLLINEAR = 0.9
+"""Candidates whose orthogonalised contributions correlate above this form one group."""
+
+
+@dataclass
+class Diagnosis:
+    """Candidate effects ranked by how much of the residual they explain."""
+
+    ranking: pd.DataFrame
+    groups: list[list[str]] = field(default_factory=list)
+    residual: np.ndarray | None = None  # the model's (scaled) equation-error residual
+    columns: dict[str, np.ndarray] = field(default_factory=dict)  # orthogonalised candidates
+    candidates: dict[str, Candidate] = field(default_factory=dict)  # what each ranked name adds
+
+    def plot(self, top: int = 3):
+        """Partial-residual (added-variable) plots of the top candidates."""
+        from cvxid.plots import partial_residual_figure
+
+        return partial_residual_figure(self, top)
+
+    @property
+    def top(self) -> str:
+        """The best-scoring candidate (by validation drop when known, else by ERR; among
+        collinear rivals, by the free run when :meth:`decided` was called)."""
+        return str(self.ranking.index[0])
+
+    def decided(self, fits: dict[str, float | None]) -> Diagnosis:
+        """This diagnosis with collinear rivals decided by their test free-run fits
+        (``fits``: rival -> fit %, the mean over coordinates; None when its free run
+        diverged): a ``free_run_fit`` column, and the best rival first."""
+        best = max(fits, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf)
+        ranking = self.ranking.assign(free_run_fit=pd.Series({g: np.nan if f is None else f for g, f in fits.items()},
+                                                             dtype=float))
+        ranking = pd.concat([ranking.loc[[best]], ranking.drop(index=best)])
+        return replace(self, ranking=ranking)
+
+    def records(self) -> list[dict]:
+        out = []
+        for name, row in self.ranking.iterrows():
+            rec = {"effect": str(name)}
+            rec.update({k: (None if pd.isna(v) else (float(v) if not isinstance(v, str) else v)) for k, v in row.items()})
+            out.append(rec)
+        return out
+
+    def __repr__(self) -> str:
+        text = "Diagnosis: missing effects, best first\n" + self.ranking.to_string(float_format=lambda v: f"{v:.4g}")
+        shared = [g for g in self.groups if len(g) > 1]
+        if shared:
+            text += "\n  nearly collinear (the data cannot tell them apart by ERR alone): "
+            text += "; ".join(" ~ ".join(g) for g in shared)
+        if "free_run_fit" in self.ranking:
+            text += ("\n  free_run_fit: the test record's free-run fit (%) of each collinear rival refitted; "
+                     "the best is ranked first")
+        return text
+
+
+def as_system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
+    """One identified equation as the system of one equation; a system as it is."""
+    return fitted if isinstance(fitted, IdentifiedSystem) else IdentifiedSystem.of(fitted)
+
+
+def builders_for(system: IdentifiedSystem, train: Experiment, test: Experiment | None, velocity: str,
+             window: float | str | None, given=None) -> tuple[SystemBuilder, SystemBuilder | None]:
+    """The train and test builders passed in, or new ones for ``system`` (the test data on
+    the training data's windows)."""
+    train_rows, test_rows = given or (None, None)
+    if train_rows is None:
+        train_rows = SystemBuilder(system.specs, train, velocity, window)
+    if test_rows is None and test is not None:
+        test_rows = SystemBuilder(system.specs, test, velocity, train_rows.window)
+    return train_rows, test_rows
+
+
+def diagnose(
+    model: IdentifiedModel | IdentifiedSystem,
+    train: Experiment,
+    test: Experiment | None = None,
+    candidates: Sequence[str] | None = None,
+    velocity: str = "savgol",
+    window: float | str | None = "auto",
+    builders: tuple[SystemBuilder, SystemBuilder | None] | None = None,
+) -> Diagnosis:
+    """Rank ``candidates`` (catalogue names or term names; by default the catalogue and the
+    spec's own effects) missing from ``model``, one equation or a system of several
+    (``velocity`` and restart ``window`` as in
+    :class:`~cvxid.regression.builder.RegressionBuilder`; ``builders`` of the train and test
+    data may be passed to reuse their columns)."""
+    system = as_system(model)
+    spec = system.spec
+    found = candidates_of(system.specs, candidates if candidates is not None else default_candidates(system.specs))
+    if not found:
+        raise CvxidError("no candidate effect is missing from the model; nothing to diagnose")
+    # the candidates are scored as candidates, a linear one too (kept, it would be in every refit)
+    extended = {label: replace(s, library=s.library + _new_terms(s, found.values(), label), keep_linear=False)
+                for label, s in system.specs.items()}
+    train_rows, test_rows = builders_for(system, train, test, velocity, window, builders)
+    reg = train_rows.at(system.tau, extended)
+    names = list(reg.names)
+    coefficients = system.coefficients
+    used = [names.index(n) for n in spec.column_names if coefficients.get(n, 0.0) != 0.0]
+    own = {name: [names.index(spec.column(label, c.term.name)) for label in c.equations] for name, c in found.items()}
+    scale = np.sqrt(np.mean(reg.P**2, axis=0))
+    P, p = reg.P / scale, reg.p / np.sqrt(np.mean(reg.p**2))
+    Q, _ = np.linalg.qr(P[:, used])
+    r = p - Q @ (Q.T @ p)
+    ortho, err = {}, {}
+    for name, columns in own.items():
+        G = P[:, columns]
+        G = G - Q @ (Q.T @ G)
+        ortho[name], err[name] = _explained(G, r)
+    drops = {}
+    if test_rows is not None:
+        treg = test_rows.at(system.tau, extended)
+        with warnings.catch_warnings():
+            # a candidate may repeat a model column (the delay's derivative at tau = 0 is x'):
+            # its ERR and its group say so, the rank warning would only alarm
+            warnings.filterwarnings("ignore", message="the regression is rank-deficient", category=CvxidWarning)
+            base = Problem.from_regression(reg, spec.nonnegative, ties=system.ties)
+        mask = np.zeros(len(names), bool)
+        mask[used] = True
+        val_before = treg.mse(base.refit(mask).coefficients)
+        for name, columns in progress(own.items(), "diagnosis: candidates", total=len(own)):
+            m2 = mask.copy()
+            m2[columns] = True
+            drops[name] = val_before / max(treg.mse(base.refit(m2).coefficients), 1e-300)
+    ranking = pd.DataFrame(
+        {
+            "term": [found[n].term.name for n in found],
+            "meaning": [found[n].term.meaning for n in found],
+            "err": [err[n] for n in found],
+            "validation_ratio": [drops.get(n, np.nan) for n in found],
+        },
+        index=pd.Index(list(found), name="effect"),
+    )
+    key = "validation_ratio" if test_rows is not None else "err"
+    ranking = ranking.sort_values([key, "err"], ascending=False)
+    return Diagnosis(ranking, _groups(ortho, list(ranking.index)), r, ortho, found)
+
+
+
+def _new_terms(spec, found, label) -> list:
+    """The candidates' terms that join equation ``label``, each once."""
+    terms = {}
+    for c in found:
+        if label in c.equations and c.term.name not in spec.column_names:
+            terms.setdefault(c.term.name, c.term)
+    return list(terms.values())
+
+
+def _explained(G: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """The part of the residual ``r`` the orthogonalised columns ``G`` explain (one column:
+    the column itself) and its share of :math:`r^T r` (the ERR)."""
+    if G.shape[1] == 1:
+        g = G[:, 0]
+        return g, float((g @ r) ** 2 / max((g @ g) * (r @ r), 1e-300))
+    fitted = G @ np.linalg.lstsq(G, r, rcond=None)[0]
+    return fitted, float((fitted @ r) / max(r @ r, 1e-300))
+
+
+def _groups(ortho: dict[str, np.ndarray], order: list[str]) -> list[list[str]]:
+    groups: list[list[str]] = []
+    for name in order:
+        g = ortho[name]
+        for group in groups:
+            h = ortho[group[0]]
+            corr = abs(g @ h) / max(np.linalg.norm(g) * np.linalg.norm(h), 1e-300)
+            if corr > COLLINEAR:
+                group.append(name)
+                break
+        else:
+            groups.append([name])
+    return groups

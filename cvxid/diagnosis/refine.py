@@ -1,0 +1,316 @@
+r"""The add-an-effect loop: diagnose, add the best effect, refit, and keep it only when the
+data agree — the same loop for one equation and for a system of :math:`N \ge 1`.
+
+Each round ranks the candidates the model lacks (:func:`~cvxid.diagnosis.ranking.diagnose`),
+refits the model with the best one (its delay profiled again; with a selection and a
+library to select from, the library selected anew beside it, so that a term the first
+selection dropped may return and one that only stood in for the missing effect may leave),
+and adds it when it passes the one acceptance rule of :mod:`cvxid.diagnosis.acceptance`:
+it lowers the test record's equation error, halves of the training rows keep choosing it,
+and the refitted model's test equation error and a simulation of the test record (its
+free run or its k-step-ahead prediction, the mean fit over the coordinates) fall.  When
+the best candidate has collinear rivals that lower the test equation error too, each is
+refitted and the free run of the test record chooses: the equation error cannot tell a
+quadratic from a cubic damping, a simulation can.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
+from cvxid.diagnosis.candidates import default_candidates, missing, with_candidate, with_input_delay
+from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
+from cvxid.diagnosis.ranking import Diagnosis, as_system, builders_for, diagnose
+from cvxid.diagnosis.residuals import residuals
+from cvxid.errors import CvxidError
+from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.identify.problem import Problem
+from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
+from cvxid.identify.selection import Selection
+from cvxid.identify.system import fit_support, identified
+from cvxid.model.equation import ModelSpec
+from cvxid.model.system import SystemSpec
+from cvxid.progress import progress
+from cvxid.regression.builder import SystemBuilder
+
+
+@dataclass(frozen=True)
+class RefineStep:
+    """One accepted addition and the errors around it: the test record's equation-error
+    MSE and its free-run fit (%, the mean over coordinates) before and after, and the delay
+    after it."""
+
+    added: str
+    term: str
+    group: list[str]
+    inclusion: float
+    """Its inclusion probability over halves of the training rows (the acceptance rule)."""
+    test_mse_before: float
+    test_mse_after: float
+    fit_before: float | None
+    fit_after: float | None
+    tau: float | None = None
+
+    @property
+    def simulation_error_before(self) -> float | None:
+        """The free run's RMS error relative to the output's spread, :math:`1 - \\text{fit}/100`."""
+        return None if self.fit_before is None else 1.0 - self.fit_before / 100.0
+
+    @property
+    def simulation_error_after(self) -> float | None:
+        return None if self.fit_after is None else 1.0 - self.fit_after / 100.0
+
+    def as_dict(self) -> dict:
+        return dict(self.__dict__, simulation_error_before=self.simulation_error_before,
+                    simulation_error_after=self.simulation_error_after)
+
+
+@dataclass
+class Refinement:
+    """The diagnose → add → refit loop: its steps, diagnoses and final system."""
+
+    system: IdentifiedSystem
+    steps: list[RefineStep]
+    diagnoses: list[Diagnosis]
+    comparisons: list[dict[str, Comparison]] = field(default_factory=list)
+    """The test record's free runs by coordinate: the starting model's, then one after each
+    added effect (empty when nothing was added)."""
+    start: IdentifiedSystem | None = None
+    """The model the loop started from."""
+    stopped: dict | None = None
+    """Why the loop stopped at its last diagnosis's best candidate, when it did (not for
+    lack of candidates or steps): ``effect``, ``validation_ratio``, whether the refitted
+    model's test ``errors_fall`` (equation and simulation), and its ``inclusion``
+    (null when an earlier condition failed first)."""
+
+    def __post_init__(self):
+        self.system = as_system(self.system)
+        self.start = None if self.start is None else as_system(self.start)
+
+    @property
+    def model(self) -> IdentifiedModel:
+        """The final model of one equation (a system of several: :attr:`system`)."""
+        if self.system.single is None:
+            raise CvxidError(f"this refinement is of {len(self.system.models)} coupled equations: use .system")
+        return self.system.single
+
+    def table(self) -> pd.DataFrame:
+        return pd.DataFrame([dict(s.__dict__) for s in self.steps]).set_index("added") if self.steps \
+            else pd.DataFrame()
+
+    @property
+    def labels(self) -> list[str]:
+        """``start``, then ``+ effect`` for each added effect."""
+        return ["start"] + [f"+ {s.added}" for s in self.steps]
+
+    def plot(self):
+        """The error history: the test record's equation-error MSE and free-run error
+        (:math:`1 - \\text{fit}/100`) before and after each added effect."""
+        from cvxid.plots import refinement_figure
+
+        steps = self.steps
+        if not steps:
+            raise CvxidError("nothing to plot: the refinement added no effect")
+        series = {"test equation-error MSE": [steps[0].test_mse_before] + [s.test_mse_after for s in steps]}
+        fits = [steps[0].fit_before] + [s.fit_after for s in steps]
+        if all(f is not None for f in fits):
+            series["test free-run error (1 - fit)"] = [1.0 - f / 100.0 for f in fits]
+        return refinement_figure(self.labels, series)
+
+    def plot_responses(self):
+        """The test record's free run before and after each added effect, over the
+        measurement, one panel each (a column per coordinate; the fit in each title)."""
+        from cvxid.plots import responses_figure
+
+        if not self.comparisons:
+            raise CvxidError("nothing to plot: the refinement added no effect")
+        return responses_figure(self.labels, self.comparisons)
+
+    def plot_residuals(self, experiment: Experiment, bins: int = 21):
+        """Where the starting model fails: each equation's error on ``experiment`` in time and
+        binned against its position and velocity (a step at x' = 0 is a dry friction, a
+        slope in x a stiffness, a level an offset)."""
+        from cvxid.plots import residual_figure
+
+        if self.start is None:
+            raise CvxidError("nothing to plot: this refinement does not know the model it started from")
+        views = {label: residuals(self.start, experiment, label) for label in self.start.models}
+        return residual_figure(views if len(views) > 1 else next(iter(views.values())), bins, title="where the starting model fails: its equation error on "
+                                                  f"'{experiment.name}'")
+
+    def __repr__(self) -> str:
+        head = "Refinement" if self.steps else "Refinement: nothing added"
+        lines = [head] + ([self.table().to_string(float_format=lambda v: f"{v:.4g}")] if self.steps else [])
+        if self.stopped is not None:
+            lines.append(stop_reason(self.stopped))
+        return "\n".join(lines)
+
+
+def refit_system(system: SystemSpec, rows: SystemBuilder, support: Sequence[str], tau: float | None,
+                 lam: float = 0.0) -> IdentifiedSystem:
+    """Least squares of ``system`` on the named columns (plus the unpenalised ones), signs
+    and ties kept; an exact delay and an input delay to estimate are profiled again on that
+    support (``rows``: the training data's builder)."""
+    keep = np.array([n in support for n in system.column_names])
+    if any(s.input_delay is not None and s.input_delay.free for s in system.equations.values()):
+        at = profile_delay(rows, support=keep, nonnegative=system.nonnegative, model=system.equations,
+                           ties=system.ties).estimate if system.exact else tau
+        late = profile_input_delay(rows, system.equations, at, keep, system.nonnegative, ties=system.ties)
+        system = SystemSpec(with_input_tau(system.equations, late.estimate), system.ties)
+    fit = fit_support(system, rows, keep, tau=None if system.exact else tau)
+    info = {"method": "equation_error", "train_mse": fit.fit.train_mse}
+    if fit.profile is not None:
+        info["tau_interval"] = list(fit.profile.interval)
+    return identified(system, fit.coefficients, fit.tau, lam, fit.profile, info)
+
+
+def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
+          velocity: str = "savgol", lam: float = 0.0, window: float | str | None = "auto",
+          builder: SystemBuilder | None = None) -> IdentifiedModel:
+    """:func:`refit_system` of one equation: least squares of ``spec`` on the named columns
+    (plus the unpenalised ones), an exact delay and an input delay to estimate profiled
+    again on that support (``builder``: the train data's, to reuse)."""
+    rows = builder if builder is not None else SystemBuilder({spec.coordinate: spec}, train, velocity, window)
+    return refit_system(SystemSpec.of(spec), rows, support, tau, lam).single
+
+
+def refine(
+    model: IdentifiedModel | IdentifiedSystem,
+    train: Experiment,
+    test: Experiment,
+    candidates: Sequence[str] | None = None,
+    max_steps: int = 5,
+    velocity: str = "savgol",
+    window: float | str | None = "auto",
+    builders: tuple[SystemBuilder, SystemBuilder] | None = None,
+    selection: Selection | None = None,
+) -> Refinement:
+    """Repeat diagnose → add the best effect → refit while the best effect passes the
+    acceptance rule (see the module docstring), for one equation or a system of several.
+    ``builders`` of the train and test data may be passed to reuse their columns;
+    ``selection`` selects the library anew beside each effect (when there is one to select
+    from)."""
+    system = start = as_system(model)
+    train_rows, test_rows = builders_for(system, train, test, velocity, window, builders)
+    steps, diagnoses, comparisons, stopped = [], [], [], None
+    candidates = list(candidates) if candidates is not None else None
+    for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
+        pool = candidates if candidates is not None else default_candidates(system.specs)
+        pool = [c for c in pool if missing(system.specs, c)]
+        if not pool:
+            break
+        dx = diagnose(system, train, test, pool, velocity, window, (train_rows, test_rows))
+        diagnoses.append(dx)
+        best = dx.top
+        stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"])
+        if not dx.ranking.loc[best, "validation_ratio"] > 1:  # (NaN: no evidence either)
+            break
+        # (the model's test error and free run: those of the last accepted step, else computed once)
+        before = steps[-1].test_mse_after if steps else _test_mse(system, test_rows)
+        old = comparisons[-1] if comparisons else compare_system(system, test, initial="record")
+        group = next(g for g in dx.groups if best in g)
+        # the equation error cannot tell a collinear group's members apart: of those that
+        # lower it, the free run of the test record chooses
+        rivals = [best] if dx.candidates[best].reestimated else [
+            g for g in group if not dx.candidates[g].reestimated and dx.ranking.loc[g, "validation_ratio"] > 1]
+        tried = {g: _with_candidate(system, g, dx, train, train_rows, test_rows, selection) for g in rivals}
+        compared = {g: compare_system(m, test, initial="record") for g, m in tried.items()}
+        if len(rivals) > 1:
+            diagnoses[-1] = dx = dx.decided({g: mean_fit(c) for g, c in compared.items()})
+        best = dx.top
+        new, new_cmp = tried[best], compared[best]
+        after = _test_mse(new, test_rows)
+        falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
+        probability = _inclusion(system, new, best, dx, train_rows, test_rows) if falls else float("nan")
+        stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
+        if not accepted(probability):
+            break
+        stopped = None
+        steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
+                                mean_fit(old), mean_fit(new_cmp), new.tau))
+        comparisons += [new_cmp] if comparisons else [old, new_cmp]
+        system = new
+    return Refinement(system, steps, diagnoses, comparisons, start, stopped)
+
+
+def _inclusion(before: IdentifiedSystem, after: IdentifiedSystem, name: str, dx: Diagnosis,
+               train_rows: SystemBuilder, test_rows: SystemBuilder) -> float:
+    """The candidate's inclusion probability (:func:`~cvxid.diagnosis.acceptance.inclusion`)
+    in the model it joins: its column in each equation it joins, beside ``after``'s other
+    terms and every unpenalised column, at ``after``'s delay (each half the same stretches
+    of time of every equation).  A change of delay is tested where it would leave: its
+    column beside ``before``'s terms, at ``before``'s delay."""
+    candidate = dx.candidates[name]
+    if candidate.reestimated:
+        model = before
+        specs = {label: replace(s, library=s.library + [candidate.term]) if label in candidate.equations else s
+                 for label, s in before.specs.items()}
+    else:
+        model, specs = after, after.specs
+    system = SystemSpec(specs, model.ties)
+    added = [system.column(label, candidate.term.name) for label in candidate.equations]
+    coefficients = model.coefficients
+    kept = [system.column(label, c.name) for label, s in specs.items() for c in s.columns
+            if system.column(label, c.name) not in added
+            and (c.penalty == 0 or coefficients.get(system.column(label, c.name), 0.0) != 0.0)]
+    parts = None if len(specs) == 1 else [train_rows.builders[label].at(model.tau, s).shape[0]
+                                          for label, s in specs.items()]
+    return inclusion(train_rows.at(model.tau, specs), test_rows.at(model.tau, specs), kept, added,
+                     system.nonnegative, model.ties, parts)
+
+
+def _with_candidate(system: IdentifiedSystem, name: str, dx: Diagnosis, train: Experiment,
+                    train_rows: SystemBuilder, test_rows: SystemBuilder,
+                    selection: Selection | None) -> IdentifiedSystem:
+    """``system`` refitted with the candidate ``name``: the delay or the input's delay
+    estimated again on the same terms, or the candidate's term added to its equations (and
+    a library to select from selected anew beside it, with a ``selection``)."""
+    support = [n for n, c in system.coefficients.items() if c != 0.0]
+    lam = next(iter(system.models.values())).lam
+    spec = system.spec
+    if name == "delay":  # a wrong delay: estimate it again on the same terms
+        return refit_system(spec, train_rows, support, None, lam)
+    if name == "input_delay":  # the input acts late: estimate its delay on the same terms
+        late = SystemSpec.of(with_input_delay(spec.single, train))
+        return refit_system(late, train_rows, support, system.tau, lam)
+    candidate = dx.candidates[name]
+    joined = SystemSpec(with_candidate(system.specs, candidate), system.ties)
+    added = [joined.column(label, candidate.term.name) for label in candidate.equations]
+    if selection is not None and any(c.penalty > 0 for s in system.specs.values() for c in s.columns):
+        joined = SystemSpec({label: replace(s, listed=s.listed + (candidate.term.name,)) if label in candidate.equations
+                             else s
+                             for label, s in joined.equations.items()}, system.ties)
+        support = _selected_anew(joined, system.tau, train_rows, test_rows, selection)
+    return refit_system(joined, train_rows, support + added, system.tau, lam)
+
+
+def _selected_anew(system: SystemSpec, tau: float | None, train_rows: SystemBuilder, test_rows: SystemBuilder,
+                   selection: Selection) -> list[str]:
+    """The columns ``selection`` keeps of ``system`` at the delay ``tau``, scored on the test rows."""
+    problem = Problem.from_regression(train_rows.at(tau, system.equations), system.nonnegative, ties=system.ties)
+    keep = selection.choose(problem, validate=test_rows.at(tau, system.equations).residual).keep
+    return [n for n, k in zip(problem.names, keep) if k]
+
+
+def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> float:
+    """The larger factor by which the free-run or the k-step-ahead simulation error (the
+    mean over coordinates) falls (a diverging simulation has an infinite error)."""
+    def error(fit):
+        return np.inf if fit is None else max(100.0 - fit, 1e-12)
+
+    pairs = [(mean_fit(old, which), mean_fit(new, which)) for which in ("fit_percent", "k_step_fit_percent")]
+    with np.errstate(invalid="ignore"):
+        ratios = np.array([error(a) / error(b) for a, b in pairs])
+    return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))
+
+
+def _test_mse(system: IdentifiedSystem, test_rows: SystemBuilder) -> float:
+    reg = test_rows.at(system.tau, system.specs)
+    coefficients = system.coefficients
+    return reg.mse(np.array([coefficients.get(n, 0.0) for n in reg.names]))
