@@ -61,7 +61,7 @@ class RunResult:
     test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
-    stability: Stability | None = None  # stability selection's inclusion probabilities (one equation)
+    stability: Stability | None = None  # stability selection's inclusion probabilities
     pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error (one equation)
 
     @property
@@ -263,11 +263,7 @@ class RunResult:
             frame.to_string(float_format=lambda v: f"{v:.4f}"),
             "",
         ]
-        for part in (self.stability, self.order_search, self.stepwise, self.pruning, self.diagnosis, self.refinement,
-                     self.simulation_refinement):
-            if part is not None:
-                lines += [repr(part), ""]
-        return "\n".join(lines + self._footer())
+        return "\n".join(lines + self._sections() + self._footer())
 
     def _coupled_summary(self) -> str:
         system = self.system
@@ -288,10 +284,16 @@ class RunResult:
         if self.polish is not None:
             lines.append(f"  {self.polish.summary()}")
         lines += ["", self.table().to_string(float_format=lambda v: f"{v:.5g}"), ""]
-        for part in (self.order_search, self.diagnosis, self.refinement):
+        return "\n".join(lines + self._sections() + self._footer())
+
+    def _sections(self) -> list[str]:
+        """Each stage the run went through, as it prints itself."""
+        lines = []
+        for part in (self.stability, self.order_search, self.stepwise, self.pruning, self.diagnosis, self.refinement,
+                     self.simulation_refinement):
             if part is not None:
                 lines += [repr(part), ""]
-        return "\n".join(lines + self._footer())
+        return lines
 
     def _footer(self) -> list[str]:
         return [f"  {self.seconds:.1f} s"] + [f"  warning: {w}" for w in self.warnings]

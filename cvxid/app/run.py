@@ -282,9 +282,8 @@ def _identify(spec) -> RunResult:
         path = Path.compute(problem, fit.lambdas, validation.residual if validation else None, "lstsq")
         best = chosen = path.fits[-1]
         keep = best.support | (problem.penalties == 0)
-    else:  # stability selection for one equation (a coupled system's rows are its equations' stacked)
-        # (the bootstrap selects on each of its samples and its mean is the estimate)
-        stability = fit.stability if one and not fit.bootstrap else None
+    else:  # (the bootstrap selects on each of its samples and its mean is the estimate)
+        stability = fit.stability if not fit.bootstrap else None
         choice = Selection(fit.estimator, fit.lambdas, fit.selection, stability).choose(
             problem, validation.residual if validation else None, folds, fit.debias)
         path, best, keep, stable, chosen = choice.path, choice.fit, choice.keep, choice.stability, choice.reported

@@ -61,14 +61,13 @@ selection's defaults, not tuned for the test."""
 
 
 def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added: Sequence[str],
-              nonnegative: Sequence[str] = (), ties: Sequence[tuple[str, str, float]] = (),
-              parts: Sequence[int] | None = None) -> float:
+              nonnegative: Sequence[str] = (), ties: Sequence[tuple[str, str, float]] = ()) -> float:
     """The candidate's inclusion probability :math:`\\hat\\pi`: the share of halves of the
     training rows ``fitted`` on which dropping the columns ``added`` from the least squares
     of ``kept`` + ``added`` (a name in both is a candidate) raises the equation error on the
     test rows ``scored`` by more than its standard error.  Rows stacked from several
-    equations give their row counts as ``parts`` (each half keeps the same stretches of
-    time of each).  Halves on which a column is zero are skipped; with fewer than half of
+    equations (:attr:`~cvxid.regression.regression.Regression.parts`) are halved on the same
+    stretches of time of each.  Halves on which a column is zero are skipped; with fewer than half of
     them left, or too few rows to cut, the candidate is refused (0) with a warning."""
 
     names = list(kept) + [n for n in added if n not in kept]
@@ -81,10 +80,11 @@ def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added
         scaled = constrained_least_squares(reduced, names, mask, signs, ties)
         return validation_score(validate(reduced.to_physical(scaled)))
 
+    parts = regression.parts or (regression.shape[0],)
     try:
         halves = list(ACCEPTANCE.halves(regression.shape[0], parts))
     except CvxidError:
-        fewest = regression.shape[0] if parts is None else min(parts)
+        fewest = min(parts)
         warnings.warn(f"the diagnosis cannot test {', '.join(added)}: {fewest} regression rows are too few to "
                       f"cut into {ACCEPTANCE.blocks} blocks; it is not added (give a longer record)", CvxidWarning,
                       stacklevel=3)

@@ -259,10 +259,8 @@ def _inclusion(before: IdentifiedSystem, after: IdentifiedSystem, name: str, dx:
     kept = [system.column(label, c.name) for label, s in specs.items() for c in s.columns
             if system.column(label, c.name) not in added
             and (c.penalty == 0 or coefficients.get(system.column(label, c.name), 0.0) != 0.0)]
-    parts = None if len(specs) == 1 else [train_rows.builders[label].at(model.tau, s).shape[0]
-                                          for label, s in specs.items()]
     return inclusion(train_rows.at(model.tau, specs), test_rows.at(model.tau, specs), kept, added,
-                     system.nonnegative, model.ties, parts)
+                     system.nonnegative, model.ties)
 
 
 def _with_candidate(system: IdentifiedSystem, name: str, dx: Diagnosis, train: Experiment,

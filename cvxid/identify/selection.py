@@ -175,7 +175,7 @@ class Selection:
             raise CvxidError("stability selection needs the rows: build the problem with Problem.from_regression")
         n = regression.shape[0]
         kept, halves = np.zeros(problem.k), 0
-        for rows in settings.halves(n):
+        for rows in settings.halves(n, regression.parts or None):  # (stacked equations: the same stretches)
             with warnings.catch_warnings():  # a half's warnings (its grid's edge) are the whole record's, said once
                 warnings.simplefilter("ignore", CvxidWarning)
                 try:  # (the half as 0/1 row weights, as the bootstrap's samples are)

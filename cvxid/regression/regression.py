@@ -50,7 +50,9 @@ class Reduced:
 
 @dataclass(frozen=True)
 class Regression:
-    """Columns ``P`` (n × k), target ``p``, column names, groups and L1 weights."""
+    """Columns ``P`` (n × k), target ``p``, column names, groups and L1 weights; for
+    several equations stacked (:meth:`block`) ``parts``, the row count of each in order
+    (rows are never sliced, only weighted, so it holds for every subset of columns)."""
 
     P: np.ndarray
     p: np.ndarray
@@ -58,6 +60,7 @@ class Regression:
     groups: tuple[str, ...]
     penalties: np.ndarray
     experiments: tuple[str, ...] = ()
+    parts: tuple[int, ...] = ()
 
     @classmethod
     def block(cls, regressions: dict[str, "Regression"]) -> "Regression":
@@ -82,7 +85,8 @@ class Regression:
             groups += list(reg.groups)
             penalties += list(reg.penalties)
             i, j = i + n, j + k
-        return cls(P, p, tuple(names), tuple(groups), np.array(penalties), tuple(regressions))
+        return cls(P, p, tuple(names), tuple(groups), np.array(penalties), tuple(regressions),
+                   tuple(r.shape[0] for r in regressions.values()))
 
     def subset(self, names) -> "Regression":
         """The regression restricted to the named columns (nested libraries share columns)."""
@@ -93,7 +97,7 @@ class Regression:
         idx = [index[n] for n in names]
         return Regression(
             self.P[:, idx], self.p, tuple(names), tuple(self.groups[i] for i in idx),
-            self.penalties[idx], self.experiments,
+            self.penalties[idx], self.experiments, self.parts,
         )
 
     @property

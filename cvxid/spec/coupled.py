@@ -36,6 +36,7 @@ from cvxid.spec.problem import (
     _number,
     _string,
     _strings,
+    _stability,
     _table,
     data_sections,
     retired_min_improvement,
@@ -47,7 +48,7 @@ JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
 JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window",
-                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler", "orders"}
+                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler", "orders", "stability"}
 
 
 def is_joint(raw: Table) -> bool:
@@ -65,8 +66,8 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
     estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
-    fit = replace(_fit({k: v for k, v in fit_t.items() if k != "estimator"}), estimator=estimator,
-                  stability=None)  # (stability selection is for one equation: a coupled spec cannot ask)
+    fit = replace(_fit({k: v for k, v in fit_t.items() if k not in ("estimator", "stability")}),
+                  estimator=estimator, stability=_stability(fit_t, estimator))
     if fit.velocity not in VELOCITIES:
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(VELOCITIES)}, got "
                          f"'{fit.velocity}'")
