@@ -151,3 +151,29 @@ def test_a_tie_in_one_equation_holds_through_the_order_search():
     coefficients = result.model.coefficients
     assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
     assert result.model.physical["k"] == pytest.approx(6.0, rel=0.02)
+
+
+def test_a_tie_in_one_equation_holds_through_the_diagnosis():
+    """A tie with [diagnose] (it was refused): the hidden friction is named and added, and
+    the tied coefficients keep their ratio in the final model."""
+    raw = tomllib.loads(TIED)
+    raw["truth"]["coefficients"]["sign(x')"] = 0.5
+    raw["diagnose"] = {"refine": True}
+    result = run(parse_problem(raw, ROOT))
+    assert [s.added for s in result.refinement.steps] == ["coulomb"]
+    coefficients = result.model.coefficients
+    assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
+    assert coefficients["sign(x')"] == pytest.approx(0.5, rel=0.02)  # (measured +0.3 %)
+
+
+def test_a_tie_in_one_equation_holds_through_the_stepwise_search():
+    """A tie with estimator = "stepwise_oe" (it was refused): the search adds x^3 to x and
+    x' and nothing else, and x^3 stays half of x."""
+    raw = tomllib.loads(TIED)
+    raw["model"]["library"] = {"terms": ["x", "x'", "x^3", "x^2", "x'^3"], "select": True}
+    raw["fit"] = {"estimator": "stepwise_oe"}
+    result = run(parse_problem(raw, ROOT))
+    coefficients = result.model.coefficients
+    assert {n for n, c in coefficients.items() if c != 0} == {"x''", "x", "x'", "x^3"}
+    assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
+    assert result.model.physical["k"] == pytest.approx(6.0, rel=0.01)

@@ -71,13 +71,14 @@ def test_removals_are_tried_least_significant_first_and_a_dropped_or_undetermine
     come first, not raise or sort last."""
     from types import SimpleNamespace
 
+    from cvxid.identified import IdentifiedModel, IdentifiedSystem
     from cvxid.identify.stepwise import _least_significant
     from cvxid.model.equation import ModelSpec
     from cvxid.model.library import Library
     from cvxid.model.terms import parse_term
 
     spec = ModelSpec(Library([parse_term(n) for n in ["x", "x'", "x^3", "x^2", "x'^3"]]))
-    fit = SimpleNamespace(model=SimpleNamespace(spec=spec),
+    fit = SimpleNamespace(system=IdentifiedSystem.of(IdentifiedModel(spec, {})),
                           parameters={"x": 6.0, "x'": 0.4, "x^3": 0.05, "x'^3": 1.0},  # x^2 left out
                           standard_errors={"x": 0.01, "x'": 0.1, "x^3": 0.01, "x'^3": float("nan")})
     order = _least_significant(["x", "x'", "x^3", "x^2", "x'^3"], fit)

@@ -124,6 +124,7 @@ class RunResult:
             "test_mse": self.test_mse,
             "estimator": fit.estimator,
             "velocity": fit.velocity,
+            "velocity_scores": self.velocity_scores,
             "window": "record" if self.window is None else self.window.as_dict(),
             "seconds": self.seconds,
             "warnings": self.warnings,
@@ -153,6 +154,26 @@ class RunResult:
             },
             "refinement": None if self.refinement is None else [s.as_dict() for s in self.refinement.steps],
             "refinement_stopped": None if self.refinement is None else self.refinement.stopped,
+            "simulation_diagnosis": None if self.simulation_refinement is None else {
+                "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
+                if self.simulation_refinement.rankings else [],
+                "steps": [s.as_dict() for s in self.simulation_refinement.steps],
+            },
+            "stepwise": None if self.stepwise is None else {
+                "history": self.stepwise.history.to_dict(orient="records"),
+                "noise": self.stepwise.noise,
+                "seconds": self.stepwise.seconds,
+            },
+            "pruning": None if self.pruning is None else {
+                "removed": self.pruning.removed,
+                "history": self.pruning.history.to_dict(orient="records"),
+                "noise": self.pruning.noise,
+                "seconds": self.pruning.seconds,
+            },
+            "order_search": None if self.order_search is None else {
+                "best_order": self.order_search.best_order,
+                "table": records(self.order_search.table),
+            },
         }
         return common | (self._coupled_dict() if self.coupled else self._single_dict())
 
@@ -179,29 +200,8 @@ class RunResult:
             **self._single_fit(),
             "lambda": model.lam,
             "selection": fit.selection,
-            "velocity_scores": self.velocity_scores,
             "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
             "solver": self.problem.solver,
-            "simulation_diagnosis": None if self.simulation_refinement is None else {
-                "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
-                if self.simulation_refinement.rankings else [],
-                "steps": [s.as_dict() for s in self.simulation_refinement.steps],
-            },
-            "stepwise": None if self.stepwise is None else {
-                "history": self.stepwise.history.to_dict(orient="records"),
-                "noise": self.stepwise.noise,
-                "seconds": self.stepwise.seconds,
-            },
-            "pruning": None if self.pruning is None else {
-                "removed": self.pruning.removed,
-                "history": self.pruning.history.to_dict(orient="records"),
-                "noise": self.pruning.noise,
-                "seconds": self.pruning.seconds,
-            },
-            "order_search": None if self.order_search is None else {
-                "best_order": self.order_search.best_order,
-                "table": records(self.order_search.table),
-            },
         }
 
     def _coupled_dict(self) -> dict:

@@ -4,11 +4,12 @@ r"""The main job: a problem spec in, an identified system and its figures out.
 ``[[model.equation]]`` tables with a shared delay and ties) the same way whatever
 :math:`N`: load or simulate the experiments; transform them once
 (:class:`~cvxid.regression.builder.SystemBuilder`); for an exact delay, profile it on the
-whole library; (optionally, one equation) search the library order; sweep :math:`\lambda`
-and select on the test experiment; (optionally) bootstrap; for an exact delay, profile it
+whole library; (optionally) search the library order; sweep :math:`\lambda` and select on
+the test experiment (with stability selection over halves of the record), or select by
+simulation error (``stepwise_oe``); (optionally) bootstrap; for an exact delay, profile it
 again on the selected support; (optionally) the Huber loss; (optionally) diagnose and add
-the missing effects; (optionally) polish by output error.  It returns a
-:class:`~cvxid.app.result.RunResult`.
+the missing effects; (optionally) polish by output error and prune the selected terms the
+simulation does not need.  It returns a :class:`~cvxid.app.result.RunResult`.
 """
 
 from __future__ import annotations
@@ -236,7 +237,6 @@ CV_FOLDS = 5
 def _identify(spec) -> RunResult:
     fit = spec.fit
     system = spec.system
-    one = system.single is not None
     if fit.estimator == "stepwise_oe" and (fit.orders or fit.bootstrap or spec.diagnose is not None
                                            or fit.loss != "squared"):
         raise CvxidError('estimator = "stepwise_oe" selects the terms itself: remove [fit] orders, bootstrap and '
@@ -244,9 +244,6 @@ def _identify(spec) -> RunResult:
     if fit.estimator == "stepwise_oe" and any(spec.listed for spec in system.equations.values()):
         raise CvxidError('estimator = "stepwise_oe" selects terms, but the listed terms are estimated, never '
                          'selected: add [model.library] select = true, or use estimator = "lstsq"')
-    if not one and fit.estimator == "stepwise_oe":
-        raise CvxidError('estimator = "stepwise_oe" is for one equation; a coupled spec selects with "lasso", '
-                         '"stlsq" or "lstsq"')
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
@@ -289,12 +286,6 @@ def _identify(spec) -> RunResult:
         path, best, keep, stable, chosen = choice.path, choice.fit, choice.keep, choice.stability, choice.reported
     taken = stable is not None and stable.accepted
     coefs = dict(zip(problem.names, np.where(keep, chosen.coefficients, 0.0)))
-    if not one and not keep.all():  # the selected terms become the libraries (diagnosis, polish, ties)
-        system = system.selected([n for n, k in zip(problem.names, keep) if k])
-        regression = regression.subset(system.column_names)
-        validation = validation.subset(system.column_names) if validation is not None else None
-        problem = Problem.from_regression(regression, system.nonnegative, fit.solver, ties=system.ties)
-        keep = np.ones(problem.k, bool)
     ensemble = None
     if fit.bootstrap:
         ensemble = search.ensembles[search.best_order] if search else bootstrap(
@@ -320,17 +311,15 @@ def _identify(spec) -> RunResult:
         info["tau_interval"] = list(profile.interval)
     result = identified(system, {n: float(c) for n, c in coefs.items()}, tau, lam, profile, info)
     tau_info = None if profile is None else profile.as_dict()
-    if ensemble is not None and one:
-        model = result.single
-        ensemble.physical = pd.DataFrame([model.spec.physical(dict(r), tau) for _, r in ensemble.coefficients.iterrows()])
-    if one and system.delay is not None and not system.exact:
+    if ensemble is not None:
+        ensemble.physical = pd.DataFrame([identified(system, dict(r), tau).physical
+                                          for _, r in ensemble.coefficients.iterrows()])
+    if system.delay is not None and not system.exact:  # (a Taylor delay: one equation)
         interval = None
         if ensemble is not None:
             taus = ensemble.physical["tau"]
             interval = [float(taus.quantile(0.025)), float(taus.quantile(0.975))]
-        tau_info = {"estimate": result.single.physical["tau"], "interval": interval, "method": "taylor"}
-    if not one and tau_info is not None:
-        tau_info["method"] = "joint profile"
+        tau_info = {"estimate": result.physical["tau"], "interval": interval, "method": "taylor"}
     out = RunResult(spec, result, None if fit.estimator == "lstsq" else path, problem, train, test, float("nan"),
                     float("nan"), bootstrap=ensemble, order_search=search, tau=tau_info, stability=stable,
                     lam=best.lam if selects else None, window=rows.window,
@@ -433,11 +422,8 @@ def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
     profile's.  With ``[diagnose] refine`` and a test record (one equation), then the
     diagnosis by simulation error (:mod:`cvxid.diagnosis.simulation`)."""
-    if out.coupled:
-        out.polish = polish(out.system, out.train, **COUPLED_POLISH)
-    else:
-        out.polish = polish(out.system, out.train)
-        _prune(out)
+    out.polish = polish(out.system, out.train, **(COUPLED_POLISH if out.coupled else {}))
+    _prune(out)
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None and not out.coupled:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
@@ -452,11 +438,13 @@ def _warn_added_then_zero(out: RunResult) -> None:
     """An effect the diagnosis added that the output-error polish set to 0 (held at its
     sign constraint's bound): the refinement table lists it, the final model lacks it, and
     the run says why."""
-    if out.refinement is None or out.coupled:
+    if out.refinement is None:
         return
-    model = out.polish.model
-    zero = [step.term for step in out.refinement.steps  # (a delay's step changes the delay, not a term)
-            if step.term in model.spec.library.names and model.coefficients.get(step.term, 0.0) == 0.0]
+    system = out.polish.system
+    coefficients = system.coefficients
+    zero = [system.column(label, step.term) for step in out.refinement.steps  # (a delay's step: not a term)
+            for label, spec in system.specs.items()
+            if step.term in spec.library.names and coefficients.get(system.column(label, step.term), 0.0) == 0.0]
     if zero:
         it = "it" if len(zero) == 1 else "them"
         warnings.warn(
@@ -474,10 +462,10 @@ def _prune(out: RunResult) -> None:
     only the equation's selection may drop them."""
     if not out.spec.fit.prune or out.spec.fit.estimator not in SELECTING:
         return
-    spec = out.polish.model.spec
-    kept = set(spec.linear_terms)
-    kept |= {step.term for step in out.refinement.steps} if out.refinement is not None else set()
-    removable = [n for n in spec.library.names if n not in spec.listed and n not in kept]
+    system = out.polish.system
+    added = {step.term for step in out.refinement.steps} if out.refinement is not None else set()
+    removable = [system.column(label, n) for label, spec in system.specs.items() for n in spec.library.names
+                 if n not in spec.listed and n not in spec.linear_terms and n not in added]
     if removable:
         out.pruning = prune_by_simulation(out.polish, out.train, removable)
         out.polish = out.pruning.polish
@@ -507,11 +495,10 @@ def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_r
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.identify.stepwise`), then the delay profiled on them and every parameter
     polished at the sample step; the delay's interval is the profile's."""
-    ((label, family),) = rows.builders.items()
-    search = stepwise_output_error(system.single, family, train)
-    model = search.model
-    system = IdentifiedSystem.of(model)
-    problem = Problem.from_regression(rows.at(model.tau, system.specs), model.spec.nonnegative, spec.fit.solver)
+    search = stepwise_output_error(system, rows, train)
+    system = search.system
+    problem = Problem.from_regression(rows.at(system.tau, system.specs), system.spec.nonnegative, spec.fit.solver,
+                                      ties=system.ties)
     out = RunResult(spec, system, None, problem, train, test, float("nan"), float("nan"), stepwise=search,
                     window=rows.window)
     out.polish = search.final

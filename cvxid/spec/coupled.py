@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Mapping
 
 from cvxid.errors import CvxidError
-from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
 from cvxid.identified import system_physical
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import resolve_term
@@ -24,6 +23,7 @@ from cvxid.model.delay import ASSUMED
 from cvxid.simulate import CoupledSystem, Equation
 from cvxid.model.library import PARAMETERS
 from cvxid.spec.problem import (
+    FIT_KEYS,
     VELOCITIES,
     DiagnoseSettings,
     ProblemSpec,
@@ -36,7 +36,6 @@ from cvxid.spec.problem import (
     _number,
     _string,
     _strings,
-    _stability,
     _table,
     data_sections,
     retired_min_improvement,
@@ -47,8 +46,6 @@ JOINT_TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagn
 JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
-JOINT_FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection", "refine", "window",
-                  "bootstrap", "n_jobs", "loss", "allow_large", "backend", "scheduler", "orders", "stability"}
 
 
 def is_joint(raw: Table) -> bool:
@@ -64,10 +61,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     model = _table(raw, "model", "", JOINT_MODEL_KEYS, required=True)
     equations, polynomials = _equations(model)
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
-    fit_t = _table(raw, "fit", "", JOINT_FIT_KEYS)
-    estimator = _string(fit_t, "estimator", "fit", "lstsq", choices=PATH_ESTIMATORS)
-    fit = replace(_fit({k: v for k, v in fit_t.items() if k not in ("estimator", "stability")}),
-                  estimator=estimator, stability=_stability(fit_t, estimator))
+    fit = _fit(_table(raw, "fit", "", FIT_KEYS), default_estimator="lstsq")
     if fit.velocity not in VELOCITIES:
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(VELOCITIES)}, got "
                          f"'{fit.velocity}'")

@@ -284,10 +284,6 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     model, polynomial = _model(model_table)
     ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
-    if ties and (fit.estimator == "stepwise_oe" or "diagnose" in raw):
-        raise CvxidError("spec: [[model.tie]] in one equation works with the lambda path, bootstrap, Huber, the "
-                         "order search and the output-error polish; not yet with estimator = \"stepwise_oe\" or "
-                         "[diagnose]")
     data = data_sections(raw)
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
@@ -525,7 +521,9 @@ def _input_delay(table: Table, where: str) -> InputDelay:
     return InputDelay(low, low, high)
 
 
-def _fit(table: Table) -> FitSettings:
+def _fit(table: Table, default_estimator: str = "adaptive_lasso") -> FitSettings:
+    """``[fit]``; ``default_estimator``: a one-equation spec selects by default, a coupled
+    one fits its listed terms by least squares."""
     where = "fit"
     lambdas = np.logspace(-6, 2, 50)
     if "lambdas" in table:
@@ -548,7 +546,7 @@ def _fit(table: Table) -> FitSettings:
         scheduler = _string(table, "scheduler", where, "")
     check_backend(backend, scheduler, where=f"spec: [{where}] backend")
     n_jobs(table)
-    estimator = _string(table, "estimator", where, "adaptive_lasso", choices=SELECTORS)
+    estimator = _string(table, "estimator", where, default_estimator, choices=SELECTORS)
     settings = FitSettings(
         backend=backend,
         scheduler=scheduler,
