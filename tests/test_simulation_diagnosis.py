@@ -17,6 +17,8 @@ from cvxid.model.library import Library
 from cvxid.model.terms import parse_term
 from cvxid.simulate import System, simulate
 
+from .conftest import ROOT
+
 TRUTH = {"x'": 0.5, "x": 4.0, "x^3": 1.5}
 DT = 0.01
 
@@ -58,3 +60,75 @@ def test_the_loop_adds_the_missing_term_when_the_test_record_agrees():
     assert first.test_rms_after < 0.5 * first.test_rms_before
     assert out.polish.parameters["x^3"] == pytest.approx(TRUTH["x^3"], rel=0.05)
     assert not any(step.kept for step in out.steps[1:])  # nothing else belongs in the model
+
+
+COUPLED = """name = "coupled_cubic"
+[truth]
+history = "zero"
+delay = { signal = "x", tau = 0.15 }
+[[truth.equation]]
+coordinate = "x"
+mass = 1.0
+input = "u"
+delay_gain = 1.0
+coefficients = { "x'" = 0.4, "x" = 6.0, "y" = -2.0, "x^3" = 3.0 }
+[[truth.equation]]
+coordinate = "y"
+mass = 1.0
+input = "u"
+delay_gain = 0.5
+coefficients = { "y'" = 0.3, "y" = 4.0, "x" = -2.0 }
+[data.train.simulate]
+duration = 10.0
+dt = 2e-3
+seed = 1
+noise = { output = 0.002 }
+input = [{ kind = "sine", amplitude = 3.0, omega = 1.9 }, { kind = "sine", amplitude = 2.0, omega = 4.7 }]
+[data.test.simulate]
+duration = 8.0
+dt = 2e-3
+seed = 2
+noise = { output = 0.002 }
+input = [{ kind = "sine", amplitude = 2.5, omega = 2.9 }, { kind = "sine", amplitude = 2.5, omega = 6.1 }]
+[model.delay]
+signal = "x"
+method = "exact"
+tau_max = 0.4
+[[model.equation]]
+coordinate = "x"
+input = "u"
+delay_gain = 1.0
+library = { terms = ["x'", "x", "y"] }
+[[model.equation]]
+coordinate = "y"
+input = "u"
+delay_gain = 0.5
+library = { terms = ["y'", "y", "x"] }
+[fit]
+velocity = "savgol"
+refine = "output_error"
+"""
+
+
+def test_a_coupled_system_lacking_a_cubic_stiffness_gets_it_from_the_simulation_error():
+    """The diagnosis by simulation error for N = 2 (it was refused): two coupled oscillators,
+    a cubic stiffness in x's equation that the model lacks; each candidate joins both
+    equations (a chi^2 with 2 degrees of freedom), the missing one scores first, is added
+    and kept, and the polish puts it in x's equation and (nearly) nothing in y's."""
+    import tomllib
+
+    from cvxid.app.run import run
+    from cvxid.spec.load import parse_problem
+
+    lacking = run(parse_problem(tomllib.loads(COUPLED), ROOT))
+    out = refine_by_simulation(lacking.polish, lacking.train, lacking.test,
+                               ["cubic_stiffness", "coulomb", "offset", "quadratic_damping"])
+    ranking = out.rankings[0]
+    assert ranking.index[0] == "cubic_stiffness(x)" and (ranking["df"] == 2).all()
+    assert ranking.loc["cubic_stiffness(x)", "score"] > chi2.ppf(0.99, 2)  # (measured 12.1)
+    first = out.steps[0]
+    assert first.added == "cubic_stiffness(x)" and first.kept
+    assert first.test_rms_after < 0.05 * first.test_rms_before  # (measured 0.1727 -> 0.0020)
+    parameters = out.polish.parameters
+    assert parameters["x:x^3"] == pytest.approx(3.0, rel=0.01) and abs(parameters["y:x^3"]) < 0.01
+    assert parameters["tau"] == pytest.approx(0.15, rel=0.03)

@@ -29,7 +29,6 @@ from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
-from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
@@ -420,12 +419,12 @@ is long and every coordinate is simulated; measured on the flexible joint)."""
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
-    profile's.  With ``[diagnose] refine`` and a test record (one equation), then the
-    diagnosis by simulation error (:mod:`cvxid.diagnosis.simulation`)."""
+    profile's.  With ``[diagnose] refine`` and a test record, then the diagnosis by
+    simulation error (:mod:`cvxid.diagnosis.simulation`)."""
     out.polish = polish(out.system, out.train, **(COUPLED_POLISH if out.coupled else {}))
     _prune(out)
     settings = out.spec.diagnose
-    if settings is not None and settings.refine and settings.simulation and out.test is not None and not out.coupled:
+    if settings is not None and settings.refine and settings.simulation and out.test is not None:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
                                                          settings.max_steps)
         out.polish = out.simulation_refinement.polish

@@ -35,3 +35,23 @@ def score_gains(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray)
     spanned = norms <= 1e-24 * np.maximum(np.einsum("ij,ij->j", columns, columns), 1e-300)
     safe = np.where(spanned, 1.0, norms)
     return np.where(spanned, 0.0, along**2 / safe), np.where(spanned, 0.0, -along / safe)
+
+
+def block_score_gain(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray]:
+    r"""The first-order fall of the squared residual when every column of ``columns``
+    ``(n, c)`` joins the fit together (one parameter added to several equations at once),
+    and their joint Gauss–Newton step:
+
+    .. math::
+
+        J_\perp = (I - J J^+) J_c, \qquad \Delta = r^T J_\perp J_\perp^+ r, \qquad
+        \delta = -J_\perp^+ r;
+
+    for one column this is :func:`score_gains`."""
+    columns = np.asarray(columns, float).reshape(residual.size, -1)
+    if columns.shape[1] == 1:
+        (gain,), step = score_gains(residual, jacobian, columns)
+        return float(gain), step
+    perp = columns - jacobian @ np.linalg.lstsq(jacobian, columns, rcond=None)[0]
+    step = -np.linalg.lstsq(perp, residual, rcond=1e-10)[0]
+    return float(-(perp @ step) @ residual), step

@@ -21,24 +21,20 @@ from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Sign
 from cvxid.model.delay import ASSUMED
 from cvxid.simulate import CoupledSystem, Equation
-from cvxid.model.library import PARAMETERS
 from cvxid.spec.problem import (
+    diagnose_settings,
     FIT_KEYS,
     VELOCITIES,
-    DiagnoseSettings,
     ProblemSpec,
     Table,
     Truth,
-    _bool,
     _fit,
     declared_effects,
     _model,
     _number,
     _string,
-    _strings,
     _table,
     data_sections,
-    retired_min_improvement,
     ties_of,
 )
 
@@ -71,18 +67,9 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
         raise CvxidError("spec: simulated data needs a [truth] section with [[truth.equation]] tables")
     diagnose = None
     if "diagnose" in raw:
-        d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects"})
         effects = declared_effects(raw, next(iter(equations.values())))  # terms of every coordinate
         equations = {label: replace(s, effects=effects) for label, s in equations.items()}
-        candidates = tuple(_strings(d, "candidates", "diagnose")) if "candidates" in d else None
-        for c in candidates or ():
-            if c in PARAMETERS:
-                raise CvxidError(f"spec: [diagnose] candidates: '{c}' is estimated again in one-equation models only; "
-                                 "a coupled system's shared delay is profiled already")
-            resolve_term(c, tuple(equations), effects)  # unknown names fail here, with the catalogue
-        retired_min_improvement(d)
-        diagnose = DiagnoseSettings(candidates, _bool(d, "refine", "diagnose", False),
-                                    _number(d, "max_steps", "diagnose", 5, positive=True, integer=True))
+        diagnose = diagnose_settings(raw, equations)
     if fit.orders and not polynomials:
         raise CvxidError("spec: [fit] orders searches an order's polynomial library: give one equation "
                          "[model.equation] library = { order = ... } instead of a terms list, or remove [fit] orders")

@@ -26,7 +26,7 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import Effect, Library, declared_effect, resolve_term
+from cvxid.model.library import PARAMETERS, Effect, Library, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.parallel import BACKENDS, check_backend
@@ -289,7 +289,7 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
     model = replace(model, effects=declared_effects(raw, model))
-    diag = _diagnose(raw, model) if "diagnose" in raw else None
+    diag = diagnose_settings(raw, {model.coordinate: model}) if "diagnose" in raw else None
     return ProblemSpec(name, folder, SystemSpec({model.coordinate: model}, ties), fit, data, truth,
                        str(raw.get("description", "")), {} if polynomial is None else {model.coordinate: polynomial},
                        diag)
@@ -394,14 +394,19 @@ def retired_min_improvement(d: Table) -> None:
                       "remove the key", CvxidWarning, stacklevel=3)
 
 
-def _diagnose(raw: Table, model: ModelSpec) -> DiagnoseSettings:
+def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSettings:
+    """``[diagnose]`` of a system of these equations (their declared effects set)."""
     d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects", "simulation"})
     retired_min_improvement(d)
     candidates = None
+    first = next(iter(equations.values()))
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
         for c in candidates:
-            resolve_term(c, (model.coordinate,), model.effects)  # unknown names fail here, with the catalogue
+            if len(equations) > 1 and c in PARAMETERS:
+                raise CvxidError(f"spec: [diagnose] candidates: '{c}' is estimated again in one-equation models only; "
+                                 "a coupled system's shared delay is profiled already")
+            resolve_term(c, tuple(s.coordinate for s in equations.values()), first.effects)  # unknown names fail
     return DiagnoseSettings(
         candidates=candidates,
         refine=_bool(d, "refine", "diagnose", False),
