@@ -486,4 +486,7 @@ def system_physical(specs: dict[str, ModelSpec], coefficients: dict[str, dict[st
             out[f"{coord}:gain"] = gain
     if tau is not None:
         out["tau"] = tau
+    late = next(iter(specs.values())).input_delay  # (shared by every equation)
+    if late is not None:
+        out["tau_u"] = late.value
     return out

@@ -111,8 +111,10 @@ def _raw():
     (lambda r: r["truth"]["equation"][1].update(input="v"), "must share one input"),
     (lambda r: r["model"]["equation"][0]["library"].update(terms=["theta'", "gamma"]), "gamma"),
     (lambda r: r["fit"].update(estimator="magic"), "estimator"),
-    (lambda r: r["model"]["equation"][0].update(input_delay=0.1), "an input delay is for one equation ([model]) only"),
-    (lambda r: r["diagnose"].update(candidates=["input_delay"]), "'input_delay' is estimated again in one-equation"),
+    (lambda r: r["model"]["equation"][0].update(input_delay=0.1), "the equations share one input, so give its delay "
+                                                                  "once, in [model]"),
+    (lambda r: r["model"].update(input_delay={"tau_min": 0.2, "tau_max": 0.1}), "[model.input_delay] needs tau_min < "
+                                                                               "tau_max"),
 ])
 def test_bad_coupled_specs_are_named(edit, message):
     raw = _raw()

@@ -29,16 +29,16 @@ def records(frame) -> dict:
     return {str(i): {str(k): float(v) for k, v in row.items()} for i, row in frame.iterrows()}
 
 
-def coupled_fit_figure(test, system, table):
-    """Every coordinate's free run on the test record from the estimated start in ``table``
-    (:meth:`~cvxid.identified.IdentifiedSystem.compare`)."""
+def coupled_fit_figure(compared: dict):
+    """Every coordinate's free run on the test record (``compared``: coordinate ->
+    :class:`~cvxid.diagnosis.compare.Comparison`) from its estimated start."""
     from cvxid.plots import coordinates_figure  # matplotlib is imported when a figure is drawn
 
-    start = {c: (table.loc[c, "initial_position"], table.loc[c, "initial_velocity"]) for c in table.index}
-    fits = ", ".join(f"{c} {table.loc[c, 'fit_percent']:.1f} % ({table.loc[c, 'record_fit_percent']:.1f} %; "
-                     f"noise allows {table.loc[c, 'noise_ceiling_percent']:.1f} %)" for c in table.index)
-    return coordinates_figure(test.time, {c: test.output(c) for c in system.coordinates},
-                              system.simulate(test, start),
+    fits = ", ".join(f"{c} {m.fit_percent:.1f} % ({m.record_fit_percent:.1f} %; noise allows {m.ceiling_percent:.1f} %)"
+                     for c, m in compared.items())
+    first = next(iter(compared.values()))
+    return coordinates_figure(first.time, {c: m.measured for c, m in compared.items()},
+                              {c: m.free_run for c, m in compared.items()},
                               f"free-run fit {fits}\ninitial state estimated (in brackets: from the record's own start)")
 
 
@@ -117,10 +117,9 @@ def write_report(result, out) -> tuple[Path, str | None]:
         "residuals": (lambda: result.refinement.plot_residuals(result.test)) if added else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
-    if result.test is not None and result.coupled and np.isfinite(result.test_fit["fit_percent"]).all():
-        plotters["test_fit"] = lambda: coupled_fit_figure(result.test, system, result.test_fit)
-    elif result.test is not None and not result.coupled and result.test_fit.free_run is not None:
-        plotters["test_fit"] = result.test_fit.plot
+    compared = result.comparisons or {}
+    if compared and all(c.free_run is not None for c in compared.values()):
+        plotters["test_fit"] = result.test_fit.plot if len(compared) == 1 else (lambda: coupled_fit_figure(compared))
     figures = {}
     for name, plot in plotters.items():
         if plot is not None:

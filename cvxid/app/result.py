@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import pandas as pd
 
 from cvxid.app.report import records
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.compare import Comparison
 from cvxid.diagnosis.ranking import Diagnosis
 from cvxid.diagnosis.refine import Refinement
 from cvxid.errors import CvxidError
@@ -58,7 +60,7 @@ class RunResult:
     stepwise: Stepwise | None = None
     lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
     window: Windows | None = None  # the algebraic operation's windows (None: the whole record)
-    test_fit: object | None = None  # the test comparison: a Comparison (one equation) or a DataFrame by coordinate
+    comparisons: dict[str, Comparison] | None = None  # the test record's free run and k-step fit, by coordinate
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
     stability: Stability | None = None  # stability selection's inclusion probabilities
@@ -78,6 +80,26 @@ class RunResult:
     @property
     def physical(self) -> dict[str, float]:
         return self.system.physical
+
+    @property
+    def test_fit(self) -> Comparison | pd.DataFrame | None:
+        """The test comparison: one equation's :class:`~cvxid.diagnosis.compare.Comparison`;
+        for several, a table by coordinate (``fit_percent``, ``rms``, ``record_fit_percent``,
+        ``initial_position``, ``initial_velocity``, ``noise_ceiling_percent``,
+        ``k_step_fit_percent``; a diverged simulation's fit is -inf, its RMS inf)."""
+        if self.comparisons is None:
+            return None
+        if not self.coupled:
+            return next(iter(self.comparisons.values()))
+        rows = {c: {"fit_percent": -np.inf if m.fit_percent is None else m.fit_percent,
+                    "rms": np.inf if m.rms is None else m.rms,
+                    "record_fit_percent": -np.inf if m.record_fit_percent is None else m.record_fit_percent,
+                    "initial_position": np.nan if m.initial_state is None else m.initial_state[0],
+                    "initial_velocity": np.nan if m.initial_state is None else m.initial_state[1],
+                    "noise_ceiling_percent": m.ceiling_percent,
+                    "k_step_fit_percent": np.nan if m.k_step_fit_percent is None else m.k_step_fit_percent}
+                for c, m in self.comparisons.items()}
+        return pd.DataFrame.from_dict(rows, orient="index").rename_axis("coordinate")
 
     # ------------------------------------------------------------------ tables
     def table(self) -> pd.DataFrame:
@@ -174,20 +196,26 @@ class RunResult:
                 "best_order": self.order_search.best_order,
                 "table": records(self.order_search.table),
             },
+            **self._test_fits(),
         }
         return common | (self._coupled_dict() if self.coupled else self._single_dict())
 
-    def _single_fit(self) -> dict:
-        cmp, coord = self.test_fit, self.spec.model.coordinate
-        state = None if cmp is None or cmp.initial_state is None else {
-            "method": cmp.initial, "position": {coord: cmp.initial_state[0]},
-            "velocity": {coord: cmp.initial_state[1]}}
-        return {"test_fit_percent": None if cmp is None else cmp.fit_percent,
-                "test_rms": None if cmp is None else cmp.rms,
-                "test_fit_percent_record_start": None if cmp is None else cmp.record_fit_percent,
-                "test_fit_percent_noise_ceiling": None if cmp is None else cmp.ceiling_percent,
-                "test_initial_state": state,
-                "test_k_step_fit_percent": None if cmp is None else cmp.k_step_fit_percent}
+    def _test_fits(self) -> dict:
+        """The test record's comparison for ``result.json``: each figure by coordinate,
+        squeezed to its value for one equation (as its columns are printed bare)."""
+        keys = {"test_fit_percent": "fit_percent", "test_rms": "rms",
+                "test_fit_percent_record_start": "record_fit_percent",
+                "test_fit_percent_noise_ceiling": "ceiling_percent", "test_k_step_fit_percent": "k_step_fit_percent"}
+        cmps = self.comparisons
+        if cmps is None:
+            return dict.fromkeys([*keys, "test_initial_state"])
+        squeeze = (lambda values: next(iter(values.values()))) if len(cmps) == 1 else (lambda values: values)
+        out = {key: squeeze({c: getattr(m, attribute) for c, m in cmps.items()}) for key, attribute in keys.items()}
+        first = next(iter(cmps.values()))
+        out["test_initial_state"] = None if first.initial_state is None else {
+            "method": first.initial, "position": {c: m.initial_state[0] for c, m in cmps.items()},
+            "velocity": {c: m.initial_state[1] for c, m in cmps.items()}}
+        return out
 
     def _single_dict(self) -> dict:
         model, fit = self.model, self.spec.fit
@@ -197,7 +225,6 @@ class RunResult:
             "regression_equation": model.regression_equation(),
             "support": model.support,
             "test_nmse": self.test_nmse,
-            **self._single_fit(),
             "lambda": model.lam,
             "selection": fit.selection,
             "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
@@ -205,7 +232,6 @@ class RunResult:
         }
 
     def _coupled_dict(self) -> dict:
-        cmp = self.test_fit
         system = self.system
         return {
             "coupled": True,
@@ -214,15 +240,6 @@ class RunResult:
             "equation_latex": {label: m.equation_latex() for label, m in system.models.items()},
             "support": [k for k, v in system.coefficients.items() if v != 0.0],
             "ties": [{"left": a, "right": b, "factor": f} for a, b, f in system.ties],
-            "test_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["fit_percent"].items()},
-            "test_fit_percent_record_start": None if cmp is None else {
-                c: float(v) for c, v in cmp["record_fit_percent"].items()},
-            "test_fit_percent_noise_ceiling": None if cmp is None else {
-                c: float(v) for c, v in cmp["noise_ceiling_percent"].items()},
-            "test_initial_state": None if cmp is None else {
-                "method": "estimated", "position": {c: float(v) for c, v in cmp["initial_position"].items()},
-                "velocity": {c: float(v) for c, v in cmp["initial_velocity"].items()}},
-            "test_k_step_fit_percent": None if cmp is None else {c: float(v) for c, v in cmp["k_step_fit_percent"].items()},
             "lambda": self.lam,
             "solver": self.spec.fit.solver,
             "loss": self.spec.fit.loss,
@@ -274,9 +291,10 @@ class RunResult:
         lines.append(f"  tau = {system.tau:.5g}"
                      + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
         if self.test is not None:
-            fits = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["fit_percent"].items())
-            own = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["record_fit_percent"].items())
-            ahead = ", ".join(f"{c} {v:.1f} %" for c, v in self.test_fit["k_step_fit_percent"].items())
+            table = self.test_fit
+            fits = ", ".join(f"{c} {v:.1f} %" for c, v in table["fit_percent"].items())
+            own = ", ".join(f"{c} {v:.1f} %" for c, v in table["record_fit_percent"].items())
+            ahead = ", ".join(f"{c} {v:.1f} %" for c, v in table["k_step_fit_percent"].items())
             lines.append(f"  test: equation-error MSE {self.test_mse:.4g}; free-run fit {fits} (initial state "
                          f"estimated; {own} from the record's own start); k-step fit {ahead}")
         else:

@@ -24,7 +24,7 @@ import pandas as pd
 
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.compare import compare, k_step_predictions, k_step_samples
+from cvxid.diagnosis.compare import compare_system
 from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine
 from cvxid.diagnosis.simulation import refine_by_simulation
@@ -39,7 +39,6 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import fit_percent
 from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
@@ -48,7 +47,6 @@ from cvxid.regression.builder import SystemBuilder
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import usable_seconds
-from cvxid.simulate import SimulationDiverged
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
 
@@ -366,26 +364,14 @@ def _estimate_input_delay(system: SystemSpec, rows: SystemBuilder, tau: float | 
 
 
 def _compare(out: RunResult):
-    """The final model against the test experiment, once: free-run (and, for one
-    equation, k-step-ahead) fit; a diverging simulation is a warning of the run."""
+    """The final model against the test experiment, once, every coordinate
+    (:func:`~cvxid.diagnosis.compare.compare_system`): free-run and k-step-ahead fit; a
+    diverging simulation is a warning of the run."""
     if out.test is None:
         return
-    if out.coupled:
-        table = out.system.compare(out.test)
-        if not np.isfinite(table["fit_percent"]).all():
-            warnings.warn("free run: the simulation of the test experiment diverged", CvxidWarning, stacklevel=2)
-        k = k_step_samples(out.test.dt)
-        try:
-            ahead = k_step_predictions(out.system, out.test, k)
-            table["k_step_fit_percent"] = [fit_percent(out.test.output(c), ahead[c]) for c in table.index]
-        except SimulationDiverged as exc:
-            table["k_step_fit_percent"] = np.nan
-            warnings.warn(f"k-step: {exc}", CvxidWarning, stacklevel=2)
-        out.test_fit = table
-        return
-    out.test_fit = compare(out.model, out.test)
-    if out.test_fit.message:
-        warnings.warn(out.test_fit.message, CvxidWarning, stacklevel=2)
+    out.comparisons = compare_system(out.system, out.test)
+    for message in dict.fromkeys(c.message for c in out.comparisons.values() if c.message):
+        warnings.warn(message, CvxidWarning, stacklevel=2)
 
 
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):

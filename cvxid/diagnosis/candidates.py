@@ -11,10 +11,11 @@ flexible joint's motor friction is :math:`+f_c` in the motor's equation and :mat
 the link's).  A spec's own effects (``[diagnose.effects]``) and plain term names are
 candidates as written; a declared effect's sign holds in one equation's model only.
 
-Two names are parameters estimated again, not terms, and are offered to one equation:
+Two names are parameters estimated again, not terms, each shared by every equation:
 ``"delay"`` (an exact delay profiled again; scored by the column
-:math:`\partial_\tau\, x(t-\tau) = -\dot x(t-\tau)`) and ``"input_delay"`` (the input's delay
-estimated; scored by the input's rate :math:`\dot u`).
+:math:`\partial_\tau\, x(t-\tau) = -\dot x(t-\tau)` in every equation) and
+``"input_delay"`` (the input's delay estimated; scored by the rate of the input each
+equation receives, :math:`\dot u`).
 """
 
 from __future__ import annotations
@@ -51,16 +52,12 @@ def _specs(model: ModelSpec | Mapping[str, ModelSpec]) -> dict[str, ModelSpec]:
 
 
 def default_candidates(model: ModelSpec | Mapping[str, ModelSpec]) -> list[str]:
-    """The catalogue and the spec's own effects minus what the model already has; for one
-    equation also ``delay`` (an exact delay) and ``input_delay``."""
+    """The catalogue and the spec's own effects minus what the model already has (``delay``:
+    for an exact delay)."""
     specs = _specs(model)
     first = next(iter(specs.values()))
-    if len(specs) == 1:
-        exact = first.delay is not None and first.delay.exact
-        names = [n for n in {**CATALOGUE, **first.effects} if n != "delay" or exact]
-    else:
-        names = [n for n in {**CATALOGUE, **first.effects} if n not in PARAMETERS]
-    return [n for n in names if missing(specs, n)]
+    exact = first.delay is not None and first.delay.exact
+    return [n for n in {**CATALOGUE, **first.effects} if (n != "delay" or exact) and missing(specs, n)]
 
 
 def missing(model: ModelSpec | Mapping[str, ModelSpec], name: str) -> bool:
@@ -105,17 +102,14 @@ def candidates(model: ModelSpec | Mapping[str, ModelSpec], names: Sequence[str])
 
 
 def _parameter(specs: dict[str, ModelSpec], name: str) -> Candidate | None:
-    """The ``delay`` or ``input_delay`` candidate of one equation (None when it has an input
-    delay already)."""
-    if len(specs) > 1:
-        raise CvxidError(f"'{name}' is estimated again in one-equation models only; a coupled system's shared delay "
-                         "is profiled already")
-    ((label, spec),) = specs.items()
-    if name == "input_delay":
-        return Candidate(name, InputRate(spec.input), (label,)) if spec.input_delay is None else None
+    """The ``delay`` or ``input_delay`` candidate, its column in every equation (None when
+    the system has an input delay already)."""
+    spec = next(iter(specs.values()))
+    if name == "input_delay":  # (each equation's column is the rate of the input it receives)
+        return Candidate(name, InputRate(spec.input), tuple(specs)) if spec.input_delay is None else None
     if not (spec.delay is not None and spec.delay.exact):
         raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
-    return Candidate(name, DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1), (label,))
+    return Candidate(name, DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1), tuple(specs))
 
 
 def with_candidate(specs: Mapping[str, ModelSpec], candidate: Candidate) -> dict[str, ModelSpec]:
@@ -140,7 +134,11 @@ def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     return with_candidate({spec.coordinate: spec}, found[name])[spec.coordinate]
 
 
-def with_input_delay(spec: ModelSpec, train: Experiment) -> ModelSpec:
-    """``spec`` with an input delay to estimate, from 0 to a quarter period of the training
-    output's band edge (:func:`~cvxid.model.input_delay.default_bound`)."""
-    return replace(spec, input_delay=InputDelay(0.0, 0.0, record_bound([train.output(spec.coordinate)], train.dt)))
+def with_input_delay(model: ModelSpec | Mapping[str, ModelSpec], train: Experiment):
+    """``model`` (one equation's spec, or specs by label) with an input delay to estimate,
+    the same in every equation, from 0 to a quarter period of the training outputs' band
+    edge (:func:`~cvxid.model.input_delay.record_bound`)."""
+    specs = _specs(model)
+    bound = record_bound([train.output(s.coordinate) for s in specs.values()], train.dt)
+    late = {label: replace(s, input_delay=InputDelay(0.0, 0.0, bound)) for label, s in specs.items()}
+    return late if not isinstance(model, ModelSpec) else late[model.coordinate]

@@ -238,7 +238,7 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
     start = start_index(experiment, next(iter(system.specs.values())).delay)
     measured = {c: experiment.output(c)[start:] for c in coords}
     run, own, message = system.simulator(experiment), system.initial_state(experiment), ""
-    state, sims, record = own, None, None
+    state, sims, record = None, None, None
     try:
         state, sims, record = free_run(lambda s: {c: v[start:] for c, v in run(s).items()}, measured, own, initial)
     except SimulationDiverged as exc:
@@ -255,7 +255,7 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
         nrmse = None if sim is None else float(np.linalg.norm(y - sim) / np.linalg.norm(y - y.mean()))
         out[c] = Comparison(experiment.time[start:], y, sim, None if sim is None else fit_percent(y, sim), nrmse, k,
                             None if ahead is None else fit_percent(experiment.output(c), ahead[c]), message, initial,
-                            state[c], None if record is None else fit_percent(y, record[c]),
+                            None if state is None else state[c], None if record is None else fit_percent(y, record[c]),
                             None if record is None else record[c], noise_ceiling_percent(y))
     return out
 

@@ -275,7 +275,7 @@ def _with_candidate(system: IdentifiedSystem, name: str, dx: Diagnosis, train: E
     if name == "delay":  # a wrong delay: estimate it again on the same terms
         return refit_system(spec, train_rows, support, None, lam)
     if name == "input_delay":  # the input acts late: estimate its delay on the same terms
-        late = SystemSpec.of(with_input_delay(spec.single, train))
+        late = SystemSpec(with_input_delay(spec.equations, train), spec.ties)
         return refit_system(late, train_rows, support, system.tau, lam)
     candidate = dx.candidates[name]
     joined = SystemSpec(with_candidate(system.specs, candidate), system.ties)

@@ -134,7 +134,7 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
             base = residual(_with_candidate(system, candidate, train, 0.0), train, initial) \
                 if name == "input_delay" else r
             columns = [(residual(_with_candidate(system, candidate, train, STEP, label), train, initial) - base) / STEP
-                       for label in candidate.equations]
+                       for label in _coefficients(candidate)]
         except SimulationDiverged:
             continue
         gain, steps = block_score_gain(r, J, np.column_stack(columns))
@@ -150,15 +150,21 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
     return frame.sort_values("score", ascending=False)
 
 
+def _coefficients(candidate: Candidate) -> tuple[str | None, ...]:
+    """The equations whose own coefficient of ``candidate`` the score perturbs one by one;
+    ``(None,)`` for the one parameter an input delay shares between the equations."""
+    return (None,) if candidate.reestimated else candidate.equations
+
+
 def _with_candidate(system: IdentifiedSystem, candidate: Candidate, train: Experiment, value: float,
                     equation: str | None = None) -> IdentifiedSystem:
     """``system`` with ``candidate`` at ``value`` (a term's coefficient, in the ``equation``
     given or in every equation it joins, 0 elsewhere; or the input's delay in seconds for
-    ``"input_delay"``)."""
+    ``"input_delay"``, every equation's)."""
     if candidate.name == "input_delay":
-        model = system.single
-        spec = with_input_delay(model.spec, train).with_input_tau(value)
-        return IdentifiedSystem.of(IdentifiedModel(spec, model.coefficients, model.lam, model.info, model.tau))
+        late = with_input_delay(system.specs, train)
+        return replace(system, models={label: IdentifiedModel(late[label].with_input_tau(value), m.coefficients, m.lam,
+                                                              m.info, m.tau) for label, m in system.models.items()})
     specs = with_candidate(system.specs, candidate)
     models = {label: IdentifiedModel(specs[label], dict(m.coefficients, **{candidate.term.name: value if equation in (
         None, label) else 0.0}) if label in candidate.equations else m.coefficients, m.lam, m.info, m.tau)
@@ -221,7 +227,7 @@ def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, 
     except (SimulationDiverged, CvxidError):
         fitted, after = None, None
     old = float(before @ before)
-    bound = old * (1 - chi2.ppf(0.95, len(candidate.equations)) / effective_rows(before))
+    bound = old * (1 - chi2.ppf(0.95, len(_coefficients(candidate))) / effective_rows(before))
     new = float(after @ after) if after is not None and after.size == before.size else np.inf
     tried = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
                            float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),

@@ -43,8 +43,9 @@ class SystemSpec:
             if len(delays) != 1 or any(s.delay is None or not s.delay.exact for s in self.equations.values()):
                 raise CvxidError("a system of several equations needs one shared exact delay (method = \"exact\") "
                                  "in every equation, with the same signal and bounds")
-        if len(self.equations) > 1 and any(s.input_delay is not None for s in self.equations.values()):
-            raise CvxidError("an input delay is for one equation only; a coupled system cannot estimate one yet")
+        if len({s.input_delay for s in self.equations.values()}) > 1:
+            raise CvxidError("the equations share one input, so one input delay: give it once ([model] input_delay), "
+                             "the same for every equation")
         names = set(self.column_names)
         for a, b, factor in self.ties:
             for name in (a, b):

@@ -29,6 +29,7 @@ from cvxid.spec.problem import (
     Table,
     Truth,
     _fit,
+    _input_delay,
     declared_effects,
     _model,
     _number,
@@ -39,7 +40,7 @@ from cvxid.spec.problem import (
 )
 
 JOINT_TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
-JOINT_MODEL_KEYS = {"equation", "delay", "tie"}
+JOINT_MODEL_KEYS = {"equation", "delay", "tie", "input_delay"}
 EQUATION_KEYS = {"coordinate", "input", "inertia", "mass", "library", "constraints", "names", "algebraic", "delay_gain"}
 DELAY_KEYS = {"signal", "method", "tau_min", "tau_max", "history"}
 
@@ -92,12 +93,13 @@ def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
     delay = _table(model, "delay", "model", DELAY_KEYS, required=True)
     if _string(delay, "method", "model.delay", "exact") != "exact":
         raise CvxidError("spec: the shared delay of a coupled model is fitted exactly: [model.delay] method = \"exact\"")
+    shared = _input_delay(model, "model") if "input_delay" in model else None  # the shared input's delay
     equations, named, polynomials = {}, {}, {}
     for i, t in enumerate(tables):
         where = f"model.equation[{i}]"
         if "input_delay" in t:
-            raise CvxidError(f"spec: [{where}] input_delay: an input delay is for one equation ([model]) only; "
-                             "a coupled spec cannot estimate one yet")
+            raise CvxidError(f"spec: [{where}] input_delay: the equations share one input, so give its delay once, "
+                             "in [model] (input_delay = seconds, or a table [model.input_delay])")
         table = _table({f"equation[{i}]": t}, f"equation[{i}]", "model", EQUATION_KEYS)
         delay_t = dict(delay, method="exact")
         if "delay_gain" in table:
@@ -106,6 +108,7 @@ def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
         table["delay"] = delay_t
         others = tuple(c for c in coords if c != coords[i])
         spec, polynomial = _model(table, where, others)
+        spec = replace(spec, input_delay=shared)
         if polynomial is not None:
             polynomials[spec.coordinate] = polynomial
         for pname in spec.names:
@@ -118,7 +121,7 @@ def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
 
 
 def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
-    t = _table(raw, "truth", "", {"equation", "delay", "history", "smoothing"})
+    t = _table(raw, "truth", "", {"equation", "delay", "history", "smoothing", "input_delay"})
     tables = t.get("equation")
     if not isinstance(tables, list) or not all(isinstance(e, Mapping) for e in tables):
         raise CvxidError("spec: a coupled [truth] needs [[truth.equation]] tables")
@@ -165,4 +168,8 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
     history = _string(t, "history", "truth", "zero", choices=ASSUMED)
     order = {c: i for i, c in enumerate(coords)}
     system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
-    return Truth(system, inputs.pop(), system_physical(equations, coefficients, tau, extra))
+    physical = system_physical(equations, coefficients, tau, extra)
+    late = _number(t, "input_delay", "truth", 0.0, within=(0, 10.0), fix="the shared input's delay in seconds")
+    if late:
+        physical["tau_u"] = late
+    return Truth(system, inputs.pop(), physical, late)

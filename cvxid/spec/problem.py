@@ -26,7 +26,7 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import PARAMETERS, Effect, Library, declared_effect, resolve_term
+from cvxid.model.library import Effect, Library, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.parallel import BACKENDS, check_backend
@@ -403,9 +403,6 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
         for c in candidates:
-            if len(equations) > 1 and c in PARAMETERS:
-                raise CvxidError(f"spec: [diagnose] candidates: '{c}' is estimated again in one-equation models only; "
-                                 "a coupled system's shared delay is profiled already")
             resolve_term(c, tuple(s.coordinate for s in equations.values()), first.effects)  # unknown names fail
     return DiagnoseSettings(
         candidates=candidates,
