@@ -192,7 +192,7 @@ def partial_residual_figure(diagnosis, top: int = 3):
     for ax, name in zip(axes[0], names):
         g = diagnosis.columns[name]
         ax.plot(g[::step], r[::step], "k.", ms=2)
-        slope = (g @ r) / (g @ g)
+        slope = (g @ r) / (g @ g) if g @ g > 0 else 0.0  # (a column the model spans: nothing to draw)
         ax.plot(g[::step], slope * g[::step], "r", lw=1)
         ax.set_title(f"{name} (ERR {diagnosis.ranking.loc[name, 'err']:.2f})", fontsize=9)
         ax.set_xlabel(f"{diagnosis.ranking.loc[name, 'term']} (orthogonalised)")

@@ -403,7 +403,7 @@ def test_a_coupled_spec_selects_its_terms_by_simulation_error():
     assert coefficients["alpha:theta'"] == pytest.approx(-coefficients["theta:theta'"], rel=1e-9)
     assert result.physical["k_s"] == pytest.approx(1.3, rel=0.02)
     assert result.physical["tau"] == pytest.approx(0.2, rel=0.005)
-    assert result.to_dict()["stepwise"]["history"][-1]["action"].startswith("polish (delay profiled)")
+    assert result.to_dict()["stepwise"]["history"][-1]["action"] == "polish at the sample step"  # (COUPLED_POLISH)
 
 
 def test_the_pruning_removes_a_coupled_systems_spurious_terms():
@@ -420,3 +420,21 @@ def test_the_pruning_removes_a_coupled_systems_spurious_terms():
     assert all(system.coefficients[f"{label}:theta^3"] == 0 for label in ("theta", "alpha"))
     assert all("theta^3" in m.spec.library.names for m in system.models.values())
     assert pruning.polish.rms_after < 1.01 * result.polish.rms_after
+
+
+def test_a_coupled_diagnosis_takes_one_coordinates_effect_by_its_printed_name():
+    """[diagnose] candidates = ["coulomb(theta)"] (the name the ranking prints; it was
+    refused as an unknown function): that coordinate's friction only; an unknown
+    coordinate is still refused."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 20.0
+    raw["data"]["test"]["simulate"]["duration"] = 8.0
+    raw["fit"] = {"velocity": "savgol", "window": 1.0}
+    raw["diagnose"] = {"refine": True, "candidates": ["coulomb(theta)", "offset"]}
+    result = run(parse_problem(raw, SPEC.parent))
+    assert list(result.diagnosis.ranking.index) == ["coulomb(theta)", "offset"]
+    assert [s.added for s in result.refinement.steps] == ["coulomb(theta)"]
+    assert result.refinement.steps[0].columns == ("theta:sign(theta')", "alpha:sign(theta')")
+    raw["diagnose"]["candidates"] = ["coulomb(beta)"]
+    with pytest.raises(CvxidError, match="beta"):
+        parse_problem(raw, SPEC.parent)

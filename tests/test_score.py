@@ -30,3 +30,22 @@ def test_a_column_the_fit_already_spans_gains_nothing():
     r = rng.standard_normal(100)
     gains, steps = score_gains(r, J, J @ [[2.0], [-1.0]])
     assert gains[0] == 0.0 and steps[0] == 0.0
+
+
+def test_a_block_of_columns_gains_the_exact_fall_of_their_joint_refit():
+    """block_score_gain: several columns joining at once (one effect added to several
+    equations) gain the joint refit's fall, at the joint refit's coefficients; one column
+    is score_gains."""
+    from cvxid.identify.score import block_score_gain
+
+    rng = np.random.default_rng(2)
+    J, columns = rng.standard_normal((300, 3)), rng.standard_normal((300, 2))
+    y = J @ [1.0, -2.0, 0.5] + columns @ [0.4, -0.3] + 0.1 * rng.standard_normal(300)
+    r = J @ np.linalg.lstsq(J, y, rcond=None)[0] - y
+    gain, steps = block_score_gain(r, J, columns)
+    both = np.column_stack([J, columns])
+    refit = np.linalg.lstsq(both, y, rcond=None)[0]
+    assert gain == pytest.approx(r @ r - np.sum((both @ refit - y) ** 2), rel=1e-9)
+    assert steps == pytest.approx(refit[-2:], rel=1e-9)
+    one, step = block_score_gain(r, J, columns[:, :1])
+    assert one == pytest.approx(score_gains(r, J, columns[:, :1])[0][0], rel=1e-12) and step.shape == (1,)

@@ -132,3 +132,17 @@ def test_a_coupled_system_lacking_a_cubic_stiffness_gets_it_from_the_simulation_
     parameters = out.polish.parameters
     assert parameters["x:x^3"] == pytest.approx(3.0, rel=0.01) and abs(parameters["y:x^3"]) < 0.01
     assert parameters["tau"] == pytest.approx(0.15, rel=0.03)
+
+
+def test_candidates_of_different_sizes_rank_by_significance_where_p_values_underflow():
+    """A chi^2_2 of 3068 is more significant than a chi^2_2 of 2145, and that than a chi^2_1
+    of 1919 (every p-value is 0.0 in floating point: ranked by them, the order was the
+    catalogue's); at a usual size the normal deviate is within 0.04 of the exact one."""
+    from scipy.stats import norm
+
+    from cvxid.diagnosis.simulation import _normal_equivalent
+
+    z = _normal_equivalent([1919.0, 3068.0, 2145.0], [1, 2, 2])
+    assert list(np.argsort(-z)) == [1, 2, 0]
+    for x, k in [(6.63, 1), (9.21, 2), (11.3, 3)]:  # the 1 % points
+        assert _normal_equivalent(x, k) == pytest.approx(norm.isf(chi2.sf(x, k)), abs=0.04)

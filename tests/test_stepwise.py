@@ -81,7 +81,8 @@ def test_removals_are_tried_least_significant_first_and_a_dropped_or_undetermine
     fit = SimpleNamespace(system=IdentifiedSystem.of(IdentifiedModel(spec, {})),
                           parameters={"x": 6.0, "x'": 0.4, "x^3": 0.05, "x'^3": 1.0},  # x^2 left out
                           standard_errors={"x": 0.01, "x'": 0.1, "x^3": 0.01, "x'^3": float("nan")})
-    order = _least_significant(["x", "x'", "x^3", "x^2", "x'^3"], fit)
+    names = ["x", "x'", "x^3", "x^2", "x'^3"]
+    order = _least_significant(names, fit, {n: (n,) for n in names})
     assert set(order[:2]) == {"x^2", "x'^3"} and order[2:] == ["x'", "x^3", "x"]
 
 
@@ -130,3 +131,33 @@ def test_pruning_needs_a_polish_and_a_selection():
         with pytest.raises(CvxidError, match=r"prune removes selected terms the output-error polish does not need: "
                                              r"it needs (refine = \"output_error\"|an estimator that selects)"):
             parse_problem(raw, ROOT / "problems")
+
+
+def test_columns_a_tie_joins_are_added_and_removed_together():
+    """Ties in the stepwise search and the pruning: a chain of ties is one unit (added and
+    dropped whole, so a tie never breaks), a column tied to one outside the library is kept,
+    and a search whose screen runs (more than four candidates left) keeps a tie between two
+    candidates (it ended in "'x^5' is not in list")."""
+    from cvxid.identify.stepwise import units
+    from cvxid.model.system import SystemSpec
+
+    from .test_spec_forms import TIED
+
+    spec = parse_problem(tomllib.loads(TIED), ROOT).system
+    tied = SystemSpec(spec.equations, (("x^3", "x", 0.5),))
+    assert units(tied, ["x'", "x^3", "x"]) == {"x'": ("x'",), "x^3 = x": ("x^3", "x")}
+    assert units(tied, ["x'", "x^3"]) == {"x'": ("x'",), "x^3 (tied outside the library)": ("x^3",)}
+    raw = tomllib.loads(TIED)  # truth: x^3 = 0.5 x; the tie offered between two candidates
+    raw["model"]["library"] = {"terms": ["x", "x'", "x^3", "x^2", "x'^3", "x^5", "x'|x'|"], "select": True}
+    raw["model"]["tie"] = [{"left": "x^5", "right": "x^3", "factor": 0.5}]
+    raw["fit"] = {"estimator": "stepwise_oe"}
+    result = run(parse_problem(raw, ROOT))
+    coefficients = result.model.coefficients
+    assert coefficients["x^5"] == pytest.approx(0.5 * coefficients["x^3"], rel=1e-9)
+    assert "x^3 = x^5" in set(result.stepwise.history["term"])  # one unit
+    raw = tomllib.loads(TIED)  # x^3 tied to the linear x, which is never pruned: so x^3 stays
+    raw["model"]["library"] = {"terms": ["x", "x'", "x^3", "x'^3"], "select": True}
+    raw["fit"] = {"estimator": "lasso", "refine": "output_error"}
+    result = run(parse_problem(raw, ROOT))
+    coefficients = result.model.coefficients
+    assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9) and coefficients["x^3"] != 0

@@ -82,3 +82,14 @@ def test_a_chain_of_ties_holds_whatever_the_order_it_is_written_in():
         a, b, c = problem.refit(np.array([True, False, False])).coefficients
         assert a == pytest.approx(3 * b, rel=1e-10) and b == pytest.approx(2 * c, rel=1e-10)
         assert c == pytest.approx(1.0, rel=0.01)
+
+
+def test_a_block_regression_knows_each_equations_rows_through_column_subsets():
+    """Regression.parts: the stacked equations' row counts, kept by a subset of columns
+    (what stability selection and the acceptance test halve on the same stretches of
+    time); one equation's regression has none."""
+    joint = equations(0)
+    assert joint.parts == (400, 400) and joint.subset(["b:v", "a:u"]).parts == (400, 400)
+    assert equations(0).subset(["a:u"]).shape == (800, 1)
+    single = Regression(np.ones((5, 1)), np.ones(5), ("u",), ("library",), np.ones(1))
+    assert single.parts == ()

@@ -64,7 +64,7 @@ class RunResult:
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
     stability: Stability | None = None  # stability selection's inclusion probabilities
-    pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error (one equation)
+    pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error
 
     @property
     def coupled(self) -> bool:

@@ -399,15 +399,22 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
 
 
 COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, grid=0, final_iterations=10)
-"""A coupled system's polish schedule: one start, a coarser first step (a coupled record
-is long and every coordinate is simulated; measured on the flexible joint)."""
+"""A coupled system's polish schedule (the run's, the stepwise search's and the pruning's):
+one start, a coarser first step, no delay profile (a coupled record is long and every
+coordinate is simulated; on the flexible joint the default schedule took 32 s, this one 2)."""
+
+
+def _schedule(system) -> dict:
+    """The output-error polish's settings for ``system`` (a spec or an identified system):
+    :data:`COUPLED_POLISH` for several equations, the defaults for one."""
+    return COUPLED_POLISH if len(system.equations if isinstance(system, SystemSpec) else system.models) > 1 else {}
 
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
     profile's.  With ``[diagnose] refine`` and a test record, then the diagnosis by
     simulation error (:mod:`cvxid.diagnosis.simulation`)."""
-    out.polish = polish(out.system, out.train, **(COUPLED_POLISH if out.coupled else {}))
+    out.polish = polish(out.system, out.train, **_schedule(out.system))
     _prune(out)
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None:
@@ -425,11 +432,8 @@ def _warn_added_then_zero(out: RunResult) -> None:
     the run says why."""
     if out.refinement is None:
         return
-    system = out.polish.system
-    coefficients = system.coefficients
-    zero = [system.column(label, step.term) for step in out.refinement.steps  # (a delay's step: not a term)
-            for label, spec in system.specs.items()
-            if step.term in spec.library.names and coefficients.get(system.column(label, step.term), 0.0) == 0.0]
+    coefficients = out.polish.system.coefficients
+    zero = [column for step in out.refinement.steps for column in step.columns if coefficients.get(column, 0.0) == 0.0]
     if zero:
         it = "it" if len(zero) == 1 else "them"
         warnings.warn(
@@ -448,11 +452,11 @@ def _prune(out: RunResult) -> None:
     if not out.spec.fit.prune or out.spec.fit.estimator not in SELECTING:
         return
     system = out.polish.system
-    added = {step.term for step in out.refinement.steps} if out.refinement is not None else set()
+    added = {c for step in out.refinement.steps for c in step.columns} if out.refinement is not None else set()
     removable = [system.column(label, n) for label, spec in system.specs.items() for n in spec.library.names
-                 if n not in spec.listed and n not in spec.linear_terms and n not in added]
+                 if n not in spec.listed and n not in spec.linear_terms and system.column(label, n) not in added]
     if removable:
-        out.pruning = prune_by_simulation(out.polish, out.train, removable)
+        out.pruning = prune_by_simulation(out.polish, out.train, removable, schedule=_schedule(out.system))
         out.polish = out.pruning.polish
 
 
@@ -480,7 +484,7 @@ def _stepwise(spec: ProblemSpec, system: SystemSpec, rows: SystemBuilder, test_r
     """``estimator = "stepwise_oe"``: terms chosen by simulation error
     (:mod:`cvxid.identify.stepwise`), then the delay profiled on them and every parameter
     polished at the sample step; the delay's interval is the profile's."""
-    search = stepwise_output_error(system, rows, train)
+    search = stepwise_output_error(system, rows, train, schedule=_schedule(system))
     system = search.system
     problem = Problem.from_regression(rows.at(system.tau, system.specs), system.spec.nonnegative, spec.fit.solver,
                                       ties=system.ties)

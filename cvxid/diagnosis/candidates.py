@@ -27,7 +27,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
 from cvxid.model.equation import ModelSpec
 from cvxid.model.input_delay import InputDelay, record_bound
-from cvxid.model.library import CATALOGUE, PARAMETERS, resolve_term
+from cvxid.model.library import CATALOGUE, PARAMETERS, coordinate_effect, resolve_term
 from cvxid.model.terms import DelayedSignal, InputRate, Term
 
 
@@ -67,8 +67,9 @@ def missing(model: ModelSpec | Mapping[str, ModelSpec], name: str) -> bool:
 
 
 def candidates(model: ModelSpec | Mapping[str, ModelSpec], names: Sequence[str]) -> dict[str, Candidate]:
-    """The candidates the ``names`` (catalogue effects, the spec's own effects, term names,
-    ``delay``, ``input_delay``) give ``model`` (one equation's spec, or specs by label), by
+    """The candidates the ``names`` (catalogue effects, one coordinate's catalogue effect
+    ``"coulomb(theta)"``, the spec's own effects, term names, ``delay``, ``input_delay``)
+    give ``model`` (one equation's spec, or specs by label), by
     candidate name, leaving out what every equation already has."""
     specs = _specs(model)
     labels = list(specs)
@@ -83,7 +84,11 @@ def candidates(model: ModelSpec | Mapping[str, ModelSpec], names: Sequence[str])
             if found is not None:
                 out[name] = found
             continue
-        if name in declared:
+        one = coordinate_effect(name, coords)
+        if one is not None and len(specs) > 1:  # "coulomb(theta)": one coordinate's
+            eff, c = CATALOGUE[one[0]], one[1]
+            built = {name: (eff.build(c), label_of[c] if eff.nonnegative else None)}
+        elif name in declared:
             eff = declared[name]
             built = {name: (eff.build(coords[0]), labels[0] if eff.nonnegative and len(specs) == 1 else None)}
         elif name in CATALOGUE:

@@ -103,9 +103,10 @@ def as_system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
 
 def builders_for(system: IdentifiedSystem, train: Experiment, test: Experiment | None, velocity: str,
              window: float | str | None, given=None) -> tuple[SystemBuilder, SystemBuilder | None]:
-    """The train and test builders passed in, or new ones for ``system`` (the test data on
-    the training data's windows)."""
-    train_rows, test_rows = given or (None, None)
+    """The train and test builders passed in (a system's, or one equation's
+    :class:`~cvxid.regression.builder.RegressionBuilder`), or new ones for ``system`` (the
+    test data on the training data's windows)."""
+    train_rows, test_rows = (None if b is None else SystemBuilder.of(b) for b in (given or (None, None)))
     if train_rows is None:
         train_rows = SystemBuilder(system.specs, train, velocity, window)
     if test_rows is None and test is not None:
@@ -147,9 +148,7 @@ def diagnose(
     r = p - Q @ (Q.T @ p)
     ortho, err = {}, {}
     for name, columns in own.items():
-        G = P[:, columns]
-        G = G - Q @ (Q.T @ G)
-        ortho[name], err[name] = _explained(G, r)
+        ortho[name], err[name] = _explained(P[:, columns], Q, r)
     drops = {}
     if test_rows is not None:
         treg = test_rows.at(system.tau, extended)
@@ -189,12 +188,19 @@ def _new_terms(spec, found, label) -> list:
     return list(terms.values())
 
 
-def _explained(G: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
-    """The part of the residual ``r`` the orthogonalised columns ``G`` explain (one column:
-    the column itself) and its share of :math:`r^T r` (the ERR)."""
+def _explained(columns: np.ndarray, Q: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
+    """The candidate's ``columns`` orthogonalised against the model's (orthonormal ``Q``):
+    the part of the residual ``r`` they explain (one column: the column itself) and its share
+    of :math:`r^T r` (the ERR).  A column the model spans already (its orthogonal part below
+    :math:`10^{-12}` of its norm: rounding) explains nothing."""
+    G = columns - Q @ (Q.T @ columns)
+    spanned = np.einsum("ij,ij->j", G, G) <= 1e-24 * np.einsum("ij,ij->j", columns, columns)
+    if spanned.all():
+        return np.zeros(r.size), 0.0
     if G.shape[1] == 1:
         g = G[:, 0]
         return g, float((g @ r) ** 2 / max((g @ g) * (r @ r), 1e-300))
+    G = G[:, ~spanned]
     fitted = G @ np.linalg.lstsq(G, r, rcond=None)[0]
     return fitted, float((fitted @ r) / max(r @ r, 1e-300))
 

@@ -37,14 +37,14 @@ from cvxid.identify.system import fit_support, identified
 from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
-from cvxid.regression.builder import SystemBuilder
+from cvxid.regression.builder import RegressionBuilder, SystemBuilder
 
 
 @dataclass(frozen=True)
 class RefineStep:
     """One accepted addition and the errors around it: the test record's equation-error
     MSE and its free-run fit (%, the mean over coordinates) before and after, and the delay
-    after it."""
+    after it; ``columns``: the columns it added (none for a delay estimated again)."""
 
     added: str
     term: str
@@ -56,6 +56,7 @@ class RefineStep:
     fit_before: float | None
     fit_after: float | None
     tau: float | None = None
+    columns: tuple[str, ...] = ()
 
     @property
     def simulation_error_before(self) -> float | None:
@@ -67,7 +68,7 @@ class RefineStep:
         return None if self.fit_after is None else 1.0 - self.fit_after / 100.0
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__, simulation_error_before=self.simulation_error_before,
+        return dict(self.__dict__, columns=list(self.columns), simulation_error_before=self.simulation_error_before,
                     simulation_error_after=self.simulation_error_after)
 
 
@@ -101,8 +102,8 @@ class Refinement:
         return self.system.single
 
     def table(self) -> pd.DataFrame:
-        return pd.DataFrame([dict(s.__dict__) for s in self.steps]).set_index("added") if self.steps \
-            else pd.DataFrame()
+        return pd.DataFrame([{k: v for k, v in s.__dict__.items() if k != "columns"} for s in self.steps]) \
+            .set_index("added") if self.steps else pd.DataFrame()
 
     @property
     def labels(self) -> list[str]:
@@ -172,11 +173,12 @@ def refit_system(system: SystemSpec, rows: SystemBuilder, support: Sequence[str]
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,
           velocity: str = "savgol", lam: float = 0.0, window: float | str | None = "auto",
-          builder: SystemBuilder | None = None) -> IdentifiedModel:
+          builder: SystemBuilder | RegressionBuilder | None = None) -> IdentifiedModel:
     """:func:`refit_system` of one equation: least squares of ``spec`` on the named columns
     (plus the unpenalised ones), an exact delay and an input delay to estimate profiled
     again on that support (``builder``: the train data's, to reuse)."""
-    rows = builder if builder is not None else SystemBuilder({spec.coordinate: spec}, train, velocity, window)
+    rows = SystemBuilder.of(builder) if builder is not None else SystemBuilder({spec.coordinate: spec}, train, velocity,
+                                                                                window)
     return refit_system(SystemSpec.of(spec), rows, support, tau, lam).single
 
 
@@ -232,8 +234,10 @@ def refine(
         if not accepted(probability):
             break
         stopped = None
+        joined = dx.candidates[best]
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
-                                mean_fit(old), mean_fit(new_cmp), new.tau))
+                                mean_fit(old), mean_fit(new_cmp), new.tau, () if joined.reestimated else tuple(
+                                    system.spec.column(label, joined.term.name) for label in joined.equations)))
         comparisons += [new_cmp] if comparisons else [old, new_cmp]
         system = new
     return Refinement(system, steps, diagnoses, comparisons, start, stopped)

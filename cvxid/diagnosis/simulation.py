@@ -20,7 +20,7 @@ which is :math:`\chi^2_k` (``df``: :math:`k` its columns) when the effect is abs
 independent residuals, :func:`~cvxid.identify.profile.effective_rows`: a model error
 colours them).  :math:`J` is one batch of simulations, then one simulation per candidate
 (:math:`J_c` by a forward difference); no fit.  The candidate with the
-largest statistic (the smallest p-value, when candidates have different :math:`k`), when it
+most significant statistic (the largest, among candidates of one :math:`k`), when it
 is significant (:data:`LEVEL`), is added and the model polished
 again from :math:`\hat\theta` on the training record; it is **kept when the free-run error
 on the test record** (every coordinate's), which neither fit saw, **falls beyond chance**:
@@ -113,7 +113,9 @@ class SimulationRefinement:
 def score_candidates(fitted: IdentifiedModel | IdentifiedSystem, train: Experiment, candidates: Sequence[str],
                      initial=None) -> pd.DataFrame:
     """Each candidate's score statistic (see the module docstring) at the polished
-    ``fitted`` (one equation or a system) on ``train``, most significant first: ``term``,
+    ``fitted`` (one equation or a system) on ``train``, most significant first (by
+    :func:`_normal_equivalent`: the largest statistic among candidates of one size):
+    ``term``,
     ``meaning``, ``score`` (its :math:`\\chi^2_k` value), ``df`` (:math:`k`, the equations it
     joins), ``share`` (of the simulation error it explains to first order).  A candidate
     whose sign is constrained (a nonnegative effect, an input delay) scores 0 when its
@@ -145,9 +147,22 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
         rows.append({"effect": name, "term": candidate.term.name, "meaning": candidate.term.meaning,
                      "score": statistic, "df": len(columns), "share": share})
     frame = pd.DataFrame(rows, columns=["effect", "term", "meaning", "score", "df", "share"]).set_index("effect")
-    if frame["df"].nunique() > 1:  # candidates of different sizes: by their p-values
-        return frame.iloc[np.argsort(chi2.sf(frame["score"], frame["df"]), kind="stable")]
-    return frame.sort_values("score", ascending=False)
+    order = frame.assign(z=_normal_equivalent(frame["score"], frame["df"])).sort_values("z", ascending=False).index
+    return frame.loc[order]
+
+
+def _normal_equivalent(statistic, df):
+    r"""A :math:`\chi^2_k` statistic as the standard normal deviate of (about) the same
+    p-value, Wilson and Hilferty's cube root,
+
+    .. math::
+
+        z = \frac{(x/k)^{1/3} - 1 + 2/(9k)}{\sqrt{2/(9k)}},
+
+    increasing in :math:`x` for each :math:`k`, so candidates of different sizes rank by
+    their significance where the p-value itself underflows to 0 (past :math:`x \approx 1400`)."""
+    x, k = np.asarray(statistic, float), np.asarray(df, float)
+    return (np.cbrt(x / k) - 1 + 2 / (9 * k)) / np.sqrt(2 / (9 * k))
 
 
 def _coefficients(candidate: Candidate) -> tuple[str | None, ...]:

@@ -56,7 +56,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, linearisation, output_error, polish, with_tau
-from cvxid.identify.score import score_gains
+from cvxid.identify.score import block_score_gain, score_gains
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
 from cvxid.identify.system import identified
@@ -114,6 +114,37 @@ one is then converged on the step itself)."""
 
 
 
+def units(system: SystemSpec, columns: Sequence[str]) -> dict[str, tuple[str, ...]]:
+    """The ``columns`` as the search adds and removes them: each alone, and columns a chain
+    of ties joins as one unit (a tie keeps both of its columns or neither), named by its
+    columns joined with ``" = "``.  The columns tied to one outside ``columns`` (an inertia, a
+    listed term) form one last unit that the search keeps in every model."""
+    root = {c: c for c in columns}
+
+    def find(c):
+        while root[c] != c:
+            c = root[c]
+        return c
+
+    anchored = set()
+    for a, b, _ in system.ties:
+        if a in root and b in root:
+            root[find(a)] = find(b)
+        else:
+            anchored |= {a, b} & set(root)
+    groups: dict[str, list[str]] = {}
+    for c in columns:
+        groups.setdefault(find(c), []).append(c)
+    out = {" = ".join(g): tuple(g) for g in groups.values() if not anchored & set(g)}
+    fixed = tuple(c for g in groups.values() if anchored & set(g) for c in g)
+    return out | ({" + ".join(fixed) + " (tied outside the library)": fixed} if fixed else {})
+
+
+def _flat(keys: Sequence[str], members: dict[str, tuple[str, ...]]) -> list[str]:
+    """The columns of the units ``keys``."""
+    return [c for k in keys for c in members[k]]
+
+
 def noise_of(train: Experiment, system: SystemSpec | IdentifiedSystem) -> float:
     """The noise level of the simulation error's residual: the root mean square of every
     coordinate's measurement noise (:func:`~cvxid.metrics.noise_level`)."""
@@ -141,12 +172,13 @@ def _system_of(models: dict[str, IdentifiedModel], ties=()) -> IdentifiedSystem:
     return IdentifiedSystem(models, first.tau, ties=tuple(ties), info=dict(first.info))
 
 
-def _polished(fit, train: Experiment, step: float, rows: list[dict]) -> PolishResult:
-    """The search's last fit polished (its delay profiled over the range, then every
-    parameter at the sample step), the step recorded in ``rows``."""
+def _polished(fit, train: Experiment, step: float, rows: list[dict], schedule: dict | None = None) -> PolishResult:
+    """The search's last fit polished (by default its delay profiled over the range, then
+    every parameter at the sample step; ``schedule``: other settings of
+    :func:`~cvxid.identify.output_error.polish`), the step recorded in ``rows``."""
     with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
         warnings.simplefilter("ignore", CvxidWarning)
-        final = polish(fit.system, train, coarse_step=step, initial=fit.initial)
+        final = polish(fit.system, train, initial=fit.initial, **{"coarse_step": step, **(schedule or {})})
     action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
     rows.append({"step": len(rows), "action": action, "term": "", "rms": final.rms_after})
     return final
@@ -177,12 +209,13 @@ def _delay(fit, exact: bool) -> float | None:
     return fit.parameters.get("tau")
 
 
-def _screen(system: SystemSpec, fit, candidates: list[str], train: Experiment, step: float) -> list[str]:
-    """``candidates`` ranked by the score test at the current fit (:mod:`cvxid.identify.score`):
-    each one's first-order fall of the simulation error, from one batch of simulations."""
+def _screen(system: SystemSpec, fit, candidates: list[str], members: dict[str, tuple[str, ...]], train: Experiment,
+            step: float) -> list[str]:
+    """The ``candidates`` (units) ranked by the score test at the current fit
+    (:mod:`cvxid.identify.score`): each one's first-order fall of the simulation error, from
+    one batch of simulations (a tied unit's columns move as its one parameter)."""
     current = fit.system
-    have = set(current.coefficients) | set(candidates)
-    wider = system.selected(have)
+    wider = system.selected(set(current.coefficients) | set(_flat(candidates, members)))
     models = {}
     for label, spec in wider.equations.items():
         model = current.models[label]
@@ -193,37 +226,43 @@ def _screen(system: SystemSpec, fit, candidates: list[str], train: Experiment, s
     with warnings.catch_warnings():  # as the trial fits: an early (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)
         names, r, J = linearisation(seeded, train, fit.initial, step)
-    own = [names.index(parameter_of(seeded, n)) for n in candidates]
-    gains, steps = score_gains(r, np.delete(J, own, axis=1), J[:, own])
-    gains = np.where((steps < 0) & np.isin(candidates, list(system.nonnegative)), 0.0, gains)
-    return [candidates[i] for i in np.argsort(-gains, kind="stable")]
+    present = {k: [c for c in members[k] if parameter_of(seeded, c) in names] for k in candidates}  # (a tie leaves
+    params = {k: [names.index(parameter_of(seeded, c)) for c in present[k]] for k in candidates}  # one of a unit's)
+    others = np.delete(J, [i for k in candidates for i in params[k]], axis=1)
+    single = [k for k in candidates if len(params[k]) == 1]
+    gains = dict(zip(single, zip(*score_gains(r, others, J[:, [params[k][0] for k in single]])))) if single else {}
+    gains |= {k: block_score_gain(r, others, J[:, params[k]]) for k in candidates if k not in gains}
+    score = [0.0 if any(np.atleast_1d(gains[k][1])[i] < 0 and c in system.nonnegative for i, c in enumerate(present[k]))
+             else float(gains[k][0]) for k in candidates]
+    return [candidates[i] for i in np.argsort(-np.array(score), kind="stable")]
 
 
-def _least_significant(columns: list[str], fit) -> list[str]:
-    r"""``columns`` ordered by the Wald statistic :math:`|\theta_j| / \mathrm{se}_j` of their
-    coefficients in ``fit``, smallest first: the first-order rise of the simulation error
-    when each is dropped and the others refitted, least first.  A term the fit left out
-    (its coefficient exactly 0: the simulation drops it) or whose standard error is
-    undetermined (it moves nothing) comes first."""
+def _least_significant(keys: list[str], fit, members: dict[str, tuple[str, ...]]) -> list[str]:
+    r"""The units ``keys`` ordered by the Wald statistic :math:`|\theta_j| / \mathrm{se}_j` of
+    their coefficients in ``fit`` (a tied unit: its one parameter), smallest first: the
+    first-order rise of the simulation error when each is dropped and the others refitted,
+    least first.  A term the fit left out (its coefficient exactly 0: the simulation drops
+    it) or whose standard error is undetermined (it moves nothing) comes first."""
     wald = []
-    for n in columns:
-        name = parameter_of(fit.system, n)
-        value, error = fit.parameters.get(name, 0.0), fit.standard_errors.get(name, np.nan)
-        wald.append(abs(value) / error if error > 0 and value != 0 else 0.0)
-    return [columns[i] for i in np.argsort(wald, kind="stable")]
+    for k in keys:
+        statistics = [0.0]
+        for c in members[k]:
+            name = parameter_of(fit.system, c)
+            if name in fit.parameters:
+                value, error = fit.parameters[name], fit.standard_errors.get(name, np.nan)
+                statistics.append(abs(value) / error if error > 0 and value != 0 else 0.0)
+        wald.append(max(statistics))
+    return [keys[i] for i in np.argsort(wald, kind="stable")]
 
 
-def _without(system: IdentifiedSystem, column: str) -> IdentifiedSystem:
-    """``system`` with the library column ``column`` dropped and every other coefficient
+def _without(system: IdentifiedSystem, columns: Sequence[str]) -> IdentifiedSystem:
+    """``system`` with the library ``columns`` (a unit) dropped and every other coefficient
     kept (a warm start; its lambda and notes too)."""
     spec = system.spec
-    label = next(lb for lb, s in spec.equations.items() for t in s.library if spec.column(lb, t.name) == column)
-    cut = spec.selected(set(library_columns(spec)) - {column})
-    model = system.models[label]
-    kept = cut.equations[label]
-    models = dict(system.models)
-    models[label] = IdentifiedModel(kept, {n: model.coefficients.get(n, 0.0) for n in kept.column_names}, model.lam,
-                                    model.info, model.tau)
+    cut = spec.selected(set(library_columns(spec)) - set(columns))
+    models = {label: IdentifiedModel(kept, {n: system.models[label].coefficients.get(n, 0.0) for n in kept.column_names},
+                                     system.models[label].lam, system.models[label].info, system.models[label].tau)
+              for label, kept in cut.equations.items()}
     return _system_of(models, cut.ties)
 
 
@@ -238,8 +277,8 @@ def _trial(system: IdentifiedSystem, experiment: Experiment, step: float, iterat
     return fit, fit.rms_after if np.isfinite(fit.rms_after) else np.inf
 
 
-def _addition(pool, system, rows, fit, current, names, train, step, needed, noise):
-    """The forward step: (column, converged fit, its simulation error) of the candidate
+def _addition(pool, system, rows, fit, current, members, train, step, needed, noise):
+    """The forward step: (unit, converged fit, its simulation error) of the candidate
     whose ranking fit lowers the simulation error most, if its converged fit is below
     ``needed``; else None.  The :data:`SCREEN` best by the score test are fitted first; only
     when the best of them is not enough are the others fitted too, and the best of all is
@@ -249,14 +288,14 @@ def _addition(pool, system, rows, fit, current, names, train, step, needed, nois
     :data:`SCREEN` candidates are left, every candidate is fitted at once."""
     tau = _delay(fit, system.exact)
     regression = rows.at(tau if system.exact else None)
-    rest = [n for n in names if n not in current]
+    rest = [k for k in members if k not in current]
     screened = fit.rms_after <= SCREEN_BELOW * noise and len(rest) > SCREEN
-    batches = _screen(system, fit, rest, train, 2 * step) if screened else rest
+    batches = _screen(system, fit, rest, members, train, 2 * step) if screened else rest
     trials: dict[str, tuple] = {}
     converged: set[str] = set()
     for batch in (batches[:SCREEN], batches[SCREEN:]) if screened else (batches,):
-        trials.update(zip(batch, pool(delayed(_trial)(_start(system, regression, current + [n], tau), train, 2 * step,
-                                                      RANKING)
+        trials.update(zip(batch, pool(delayed(_trial)(_start(system, regression, _flat(current + [n], members), tau),
+                                                      train, 2 * step, RANKING)
                                       for n in progress(batch, f"stepwise: adding term {len(current) + 1}"))))
         name = min(trials, key=lambda n: trials[n][1])
         if trials[name][0] is None or name in converged:  # every one diverged, or the best was tried and fell short
@@ -268,16 +307,17 @@ def _addition(pool, system, rows, fit, current, names, train, step, needed, nois
     return None
 
 
-def _backward(pool, fit, rms, current, base, train, step, floor, tolerance, rows):
-    """Drop terms while the simulation error stays within ``tolerance`` of the larger of
-    itself and the noise ``floor``; ``current`` and ``rows`` are updated in place.  The
-    :data:`REMOVALS` least significant terms are tried first, the others only when
-    neither may go."""
+def _backward(pool, fit, rms, current, base, members, train, step, floor, tolerance, rows):
+    """Drop units while the simulation error stays within ``tolerance`` of the larger of
+    itself and the noise ``floor``; ``current`` and ``rows`` are updated in place (``base``:
+    the units never dropped).  The :data:`REMOVALS` least significant units are tried
+    first, the others only when neither may go."""
     while True:
-        ordered = _least_significant([n for n in current if n not in base], fit)
+        ordered = _least_significant([k for k in current if k not in base], fit, members)
         trials: dict[str, tuple] = {}
         for batch in (ordered[:REMOVALS], ordered[REMOVALS:]) if len(ordered) > REMOVALS else (ordered,):
-            trials.update(zip(batch, pool(delayed(_trial)(_without(fit.system, n), train, step) for n in batch)))
+            trials.update(zip(batch, pool(delayed(_trial)(_without(fit.system, members[k]), train, step)
+                                          for k in batch)))
             name = min(trials, key=lambda n: trials[n][1]) if trials else None
             if name is not None and trials[name][1] <= max((1 + tolerance) * rms, floor):
                 break
@@ -291,11 +331,13 @@ def _backward(pool, fit, rms, current, base, train, step, floor, tolerance, rows
 @one_blas_thread
 def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experiment,
                           base: Sequence[str] | None = None, min_gain: float = 0.01, tolerance: float = 0.005,
-                          step: float = 1e-3, n_jobs: int = 1) -> Stepwise:
+                          step: float = 1e-3, n_jobs: int = 1, schedule: dict | None = None) -> Stepwise:
     """Select the library terms of ``system`` (one equation or several) by simulation error
     on ``train`` (see the module docstring).  ``rows`` builds the equation-error regression
     of the whole library (at the current delay, for an exact delay); ``base`` are the
-    columns always kept (default: each equation's linear terms, e.g. ``x`` and ``x'``)."""
+    columns always kept (default: each equation's linear terms, e.g. ``x`` and ``x'``);
+    columns a tie joins are added and removed together (:func:`units`).  ``schedule``: the
+    final polish's settings (:func:`~cvxid.identify.output_error.polish`)."""
     start = time.perf_counter()
     names = library_columns(system)
     if base is None:
@@ -304,30 +346,33 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
     unknown = set(base) - set(names)
     if unknown:
         raise CvxidError(f"stepwise base term(s) {', '.join(sorted(unknown))} are not in the library")
-    base = list(base)
+    members = units(system, names)
+    base = [k for k, m in members.items() if set(m) & set(base) or k.endswith("(tied outside the library)")]
     sigma = noise_of(train, system)
     step = max(step, train.dt)
     tau = None
     if system.exact:  # the delay of the base support; the output-error fits move it, the final profile checks it
         penalties = [c.penalty for s in system.equations.values() for c in s.columns]
-        keep = [n in base or w == 0 for n, w in zip(system.column_names, penalties)]
+        keep = [n in _flat(base, members) or w == 0 for n, w in zip(system.column_names, penalties)]
         tau = profile_delay(rows, support=keep, nonnegative=system.nonnegative, model=system.equations,
                             ties=system.ties).estimate
     with warnings.catch_warnings():  # the base fit's first (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)
-        fit = output_error(_start(system, rows.at(tau), base, tau), train, step=step, max_iterations=25)
+        fit = output_error(_start(system, rows.at(tau), _flat(base, members), tau), train, step=step,
+                           max_iterations=25)
     current, rms = list(base), fit.rms_after
-    history = [{"step": 0, "action": "start", "term": ", ".join(base) or "(none)", "rms": rms}]
+    history = [{"step": 0, "action": "start", "term": ", ".join(_flat(base, members)) or "(none)", "rms": rms}]
     with Parallel(n_jobs=n_jobs) as pool:
-        while len(current) < len(names):
-            added = _addition(pool, system, rows, fit, current, names, train, step, (1 - min_gain) * rms, sigma)
+        while len(current) < len(members):
+            added = _addition(pool, system, rows, fit, current, members, train, step, (1 - min_gain) * rms, sigma)
             if added is None:
                 break
             name, fit, rms = added
             current.append(name)
             history.append({"step": len(history), "action": "add", "term": name, "rms": rms})
-        fit, rms = _backward(pool, fit, rms, current, base, train, step, (1 + tolerance) * sigma, tolerance, history)
-    final = _polished(fit, train, step, history)
+        fit, rms = _backward(pool, fit, rms, current, base, members, train, step, (1 + tolerance) * sigma, tolerance,
+                             history)
+    final = _polished(fit, train, step, history, schedule)
     chosen = _system_of({label: IdentifiedModel(m.spec, m.coefficients, 0.0,
                                                 dict(m.info, selection="stepwise output error"), m.tau)
                          for label, m in final.system.models.items()}, final.system.ties)
@@ -358,15 +403,17 @@ class Pruning:
 
 @one_blas_thread
 def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Sequence[str], step: float = 1e-3,
-                        tolerance: float = 0.005) -> Pruning:
+                        tolerance: float = 0.005, schedule: dict | None = None) -> Pruning:
     r"""Drop the ``removable`` library columns of a polished system (one equation or
     several) that the simulation error does not need: the backward steps of
     :func:`stepwise_output_error` (a term goes while :math:`J` without it, the others
     refitted, stays within ``tolerance`` of :math:`\max(J, \hat\sigma)`, :math:`J` the error
     before that step), from the polished fit refitted on the search's step; the pruned
     model is polished again (its delay profiled) and keeps the whole library, the dropped
-    terms at 0.  A selection by equation error keeps terms that a velocity estimated from
-    noisy x makes look useful; their simulation error shows they are not."""
+    terms at 0; columns a tie joins go together, when all of them may (:func:`units`).  A
+    selection by equation error
+    keeps terms that a velocity estimated from noisy x makes look useful; their simulation
+    error shows they are not."""
     start = time.perf_counter()
     system = polished.system
     spec = system.spec
@@ -384,12 +431,14 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
         rows.append({"step": 0, "action": "start" if fit is not None else "start: its simulation diverged, nothing "
                      "pruned", "term": ", ".join(current), "rms": rms})
         if fit is not None:
-            kept = [n for n in current if n not in removable]
+            members = units(spec, current)
+            keys = list(members)
+            kept = [k for k, m in members.items() if not set(m) <= set(removable)]
             with Parallel(n_jobs=1) as pool:
-                fit, rms = _backward(pool, fit, rms, current, kept, train, step, (1 + tolerance) * sigma, tolerance,
-                                     rows)
+                fit, rms = _backward(pool, fit, rms, keys, kept, members, train, step, (1 + tolerance) * sigma,
+                                     tolerance, rows)
     if len(rows) > 1:
-        pruned = _polished(fit, train, step, rows)
+        pruned = _polished(fit, train, step, rows, schedule)
         final = pruned.system  # back on the whole library: the diagnosis's candidates are what it lacks
         whole = {label: IdentifiedModel(m.spec, {n: final.models[label].coefficients.get(n, 0.0)
                                                  for n in m.spec.column_names},

@@ -141,6 +141,15 @@ def effect(name: str, declared: Mapping[str, Effect] | None = None) -> Effect:
     return known[name]
 
 
+def coordinate_effect(text: str, coordinates: tuple[str, ...]) -> tuple[str, str] | None:
+    """``("coulomb", "theta")`` for ``"coulomb(theta)"``: a catalogue effect of one named
+    coordinate (a coupled system's diagnosis names its candidates so); None for any other
+    text."""
+    name, _, rest = text.partition("(")
+    coordinate = rest[:-1] if rest.endswith(")") else None
+    return (name, coordinate) if name in CATALOGUE and coordinate in coordinates else None
+
+
 def resolve_term(text: str, coordinates: tuple[str, ...] = ("x",),
                  declared: Mapping[str, Effect] | None = None) -> Term:
     """A term from an effect's name (one the spec ``declared``, or the catalogue's; built for

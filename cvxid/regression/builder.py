@@ -263,6 +263,17 @@ class SystemBuilder:
             self.builders[label] = RegressionBuilder(spec, experiments, velocity, window, allow_large)
             window = self.builders[label].window or "record"
 
+    @classmethod
+    def of(cls, builder: "RegressionBuilder | SystemBuilder") -> "SystemBuilder":
+        """One equation's builder as the system of one equation (its columns shared, not
+        computed again); a system's builder as it is."""
+        if isinstance(builder, SystemBuilder):
+            return builder
+        system = cls.__new__(cls)
+        system.specs = {builder.model.coordinate: builder.model}
+        system.builders = {builder.model.coordinate: builder}
+        return system
+
     @property
     def window(self) -> Windows | None:
         """The algebraic operation's windows (``None``: the whole record)."""

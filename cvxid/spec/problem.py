@@ -26,7 +26,7 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import Effect, Library, declared_effect, resolve_term
+from cvxid.model.library import Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.parallel import BACKENDS, check_backend
@@ -402,8 +402,10 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
     first = next(iter(equations.values()))
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
+        coords = tuple(s.coordinate for s in equations.values())
         for c in candidates:
-            resolve_term(c, tuple(s.coordinate for s in equations.values()), first.effects)  # unknown names fail
+            if len(coords) == 1 or coordinate_effect(c, coords) is None:
+                resolve_term(c, coords, first.effects)  # unknown names fail here, with the catalogue
     return DiagnoseSettings(
         candidates=candidates,
         refine=_bool(d, "refine", "diagnose", False),
