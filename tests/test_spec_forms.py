@@ -120,6 +120,7 @@ def test_a_tie_in_the_equation_form_names_its_columns_like_the_coupled_format():
 @pytest.mark.parametrize("tie, message", [
     ({"left": "x^5", "right": "x"}, r"'x\^5' is not a column; columns are written as the terms"),
     ({"left": "x", "right": "x"}, "ties 'x' to itself"),
+    ({"left": "x^3", "right": "x", "factor": 0.0}, "factor = 0 forces 'x\\^3' to 0"),
 ])
 def test_bad_ties_in_one_equation_are_named(tie, message):
     raw = tomllib.loads(TIED)
@@ -177,3 +178,14 @@ def test_a_tie_in_one_equation_holds_through_the_stepwise_search():
     assert {n for n, c in coefficients.items() if c != 0} == {"x''", "x", "x'", "x^3"}
     assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
     assert result.model.physical["k"] == pytest.approx(6.0, rel=0.01)
+
+
+def test_the_one_equation_form_takes_its_input_delay_where_a_coupled_spec_gives_it():
+    """[model] input_delay beside one [[model.equation]] (a coupled spec's place for the
+    shared input's delay; it was refused for N = 1), but not in both places."""
+    raw = tomllib.loads(EQUATION_FORM)
+    raw["model"]["input_delay"] = {"tau_max": 0.1}
+    assert parse_problem(raw, ROOT).model.input_delay.tau_max == 0.1
+    raw["model"]["equation"][0]["input_delay"] = 0.1
+    with pytest.raises(CvxidError, match=r"input_delay is given in \[model\] and in \[\[model.equation\]\]"):
+        parse_problem(raw, ROOT)

@@ -85,7 +85,7 @@ def candidates(model: ModelSpec | Mapping[str, ModelSpec], names: Sequence[str])
                 out[name] = found
             continue
         one = coordinate_effect(name, coords)
-        if one is not None and len(specs) > 1:  # "coulomb(theta)": one coordinate's
+        if one is not None:  # "coulomb(theta)": one coordinate's
             eff, c = CATALOGUE[one[0]], one[1]
             built = {name: (eff.build(c), label_of[c] if eff.nonnegative else None)}
         elif name in declared:

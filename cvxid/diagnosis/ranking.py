@@ -132,7 +132,8 @@ def diagnose(
     spec = system.spec
     found = candidates_of(system.specs, candidates if candidates is not None else default_candidates(system.specs))
     if not found:
-        raise CvxidError("no candidate effect is missing from the model; nothing to diagnose")
+        raise CvxidError("no candidate effect is missing from the model: each one named is in it already "
+                         "([diagnose] candidates in a spec); name others, or leave them out for the whole catalogue")
     # the candidates are scored as candidates, a linear one too (kept, it would be in every refit)
     extended = {label: replace(s, library=s.library + _new_terms(s, found.values(), label), keep_linear=False)
                 for label, s in system.specs.items()}

@@ -13,6 +13,8 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
+import numpy as np
+
 from cvxid.errors import CvxidError
 from cvxid.identified import system_physical
 from cvxid.model.equation import ModelSpec
@@ -29,6 +31,7 @@ from cvxid.spec.problem import (
     Table,
     Truth,
     _fit,
+    check_selection,
     _input_delay,
     declared_effects,
     _model,
@@ -59,6 +62,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     equations, polynomials = _equations(model)
     ties = ties_of(model, SystemSpec(equations).column_names, "'equation:term'")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS), default_estimator="lstsq")
+    check_selection(fit, equations, polynomials)
     if fit.velocity not in VELOCITIES:
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(VELOCITIES)}, got "
                          f"'{fit.velocity}'")
@@ -104,6 +108,9 @@ def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
         delay_t = dict(delay, method="exact")
         if "delay_gain" in table:
             delay_t["gain"] = _number(table, "delay_gain", where)
+            if not (np.isfinite(delay_t["gain"]) and delay_t["gain"] != 0):
+                raise CvxidError(f"spec: [{where}] delay_gain must be a finite non-zero number (the equation's known "
+                                 f"feedback gain; leave it out to estimate it), got {delay_t['gain']}")
         table = {k: v for k, v in table.items() if k != "delay_gain"}
         table["delay"] = delay_t
         others = tuple(c for c in coords if c != coords[i])
@@ -132,11 +139,17 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
     delay = _table(t, "delay", "truth", {"signal", "tau"}, required=True)
     tau = _number(delay, "tau", "truth.delay", positive=True)
     signal = _string(delay, "signal", "truth.delay", coords[0])
+    derivative = 1 if signal.endswith("'") else 0  # a velocity fed back: "theta'"
+    signal = signal.removesuffix("'")
     if signal not in coords:
-        raise CvxidError(f"spec: [truth.delay] signal must be one of the coordinates {', '.join(coords)}, got '{signal}'")
+        raise CvxidError(f"spec: [truth.delay] signal must be one of the coordinates {', '.join(coords)} (or its "
+                         f"velocity, {coords[0]}'), got '{delay['signal']}'")
     eqs, inputs, coefficients, extra = [], set(), {}, {}
     for i, e in enumerate(tables):
         where = f"truth.equation[{i}]"
+        if "input_delay" in e:
+            raise CvxidError(f"spec: [{where}] input_delay: the equations share one input, so give its delay once, "
+                             "as [truth] input_delay")
         e = _table({f"equation[{i}]": e}, f"equation[{i}]", "truth", {"coordinate", "mass", "input", "coefficients",
                                                                      "delay_gain"})
         coord = _string(e, "coordinate", where)
@@ -165,10 +178,18 @@ def _truth(raw: Table, equations: dict[str, ModelSpec]) -> Truth:
         raise CvxidError(f"spec: [[truth.equation]] must describe every coordinate ({', '.join(coords)}) once")
     if len(inputs) != 1:
         raise CvxidError(f"spec: the truth's equations must share one input (with or without a '-'), got {sorted(inputs)}")
+    for i, spec in enumerate(equations.values()):
+        if spec.input_column not in inputs:
+            raise CvxidError(f"spec: [model.equation[{i}]] input = '{spec.input}' is not the input the [truth] "
+                             f"simulates ('{next(iter(inputs))}'): name that one, with or without a '-'")
     history = _string(t, "history", "truth", "zero", choices=ASSUMED)
     order = {c: i for i, c in enumerate(coords)}
-    system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history)
+    system = CoupledSystem(tuple(sorted(eqs, key=lambda q: order[q.coordinate])), signal, tau, history, derivative)
     physical = system_physical(equations, coefficients, tau, extra)
+    for q in eqs:  # the truth's own gains and input delay, where the model estimates or has them
+        if f"{q.coordinate}:gain" in physical:
+            physical[f"{q.coordinate}:gain"] = q.delay_gain
+    physical.pop("tau_u", None)
     late = _number(t, "input_delay", "truth", 0.0, within=(0, 10.0), fix="the shared input's delay in seconds")
     if late:
         physical["tau_u"] = late

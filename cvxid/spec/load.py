@@ -61,6 +61,10 @@ def single_equation_form(raw: Table) -> dict:
         if "delay_gain" in equation:
             delay["gain"] = equation["delay_gain"]
         single["delay"] = delay
+    if "input_delay" in model:  # the shared input's delay, where a coupled spec gives it
+        if "input_delay" in single:
+            raise CvxidError("spec: input_delay is given in [model] and in [[model.equation]]: give it once")
+        single["input_delay"] = model.pop("input_delay")
     if model:
         raise CvxidError(f"spec: [model] key(s) {', '.join(sorted(model))} beside [[model.equation]]; move them into "
                          "the equation's table")

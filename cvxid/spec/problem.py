@@ -26,13 +26,13 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import Effect, Library, coordinate_effect, declared_effect, resolve_term
+from cvxid.model.library import CATALOGUE, Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.parallel import BACKENDS, check_backend
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import KINDS, WINDOWS, Windows
-from cvxid.simulate import CoupledSystem, Equation, simulate_coupled
+from cvxid.simulate import CoupledSystem, Equation, SimulationDiverged, simulate_coupled
 
 Table = Mapping[str, Any]
 
@@ -194,8 +194,13 @@ class ProblemSpec:
 
     def at_order(self, system: SystemSpec, order: int) -> SystemSpec:
         """``system`` (this spec's, with whatever the run resolved in it) with its
-        polynomial libraries at ``order``."""
-        return system.with_libraries(self.libraries(order))
+        polynomial libraries at ``order``; a term a tie names stays at every order (the tie
+        says it belongs)."""
+        tied = {name for a, b, _ in system.ties for name in (a, b)}
+        libraries = {label: library + [t for t in system.equations[label].library
+                                       if system.column(label, t.name) in tied and t.name not in library.names]
+                     for label, library in self.libraries(order).items()}
+        return system.with_libraries(libraries)
 
     def experiment(self, which: str) -> Experiment:
         """Load or simulate the ``train`` or ``test`` experiment."""
@@ -207,7 +212,12 @@ class ProblemSpec:
         if self.fit.velocity not in VELOCITIES:
             raise _unknown_velocity(self.fit.velocity, f"[{where}] is simulated (velocity = 'measured' reads the "
                                                        "simulator's own velocity)")
-        experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
+        try:
+            experiment = _simulated(self, which, _table(table, "simulate", where, SIM_KEYS))
+        except SimulationDiverged as exc:
+            raise CvxidError(f"spec: [{where}.simulate] the [truth] system cannot be simulated under this input "
+                             f"({exc}): its coefficients and delay gain make an unstable loop; check [truth], or lower "
+                             "the input's amplitude or the record's duration") from None
         if "samples" not in table and "fraction" not in table:
             return experiment
         return experiment.slice(*part_bounds(experiment.n, table.get("samples"), table.get("fraction"), where))
@@ -284,6 +294,7 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     model, polynomial = _model(model_table)
     ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
+    check_selection(fit, {model.coordinate: model}, {} if polynomial is None else {model.coordinate: polynomial})
     data = data_sections(raw)
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
@@ -295,6 +306,17 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
                        diag)
 
 
+def check_selection(fit: FitSettings, equations: dict[str, ModelSpec], polynomials: dict) -> None:
+    """A terms list offered for selection (``select = true``) with an estimator that selects
+    nothing is refused: it would keep every term, silently."""
+    offered = [label for label, s in equations.items() if label not in polynomials and len(s.library) and not s.listed]
+    if fit.estimator == "lstsq" and offered:
+        where = "[model.library]" if len(equations) == 1 else f"the library of equation '{offered[0]}'"
+        raise CvxidError(f'spec: {where} has select = true, a selection, and [fit] estimator = "lstsq" selects '
+                         'nothing (it would keep every term): choose estimator = "adaptive_lasso", "lasso", "stlsq" '
+                         'or "stepwise_oe", or remove select to estimate the terms as listed')
+
+
 def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, str, float], ...]:
     """The checked ``[[model.tie]]`` tables: ``left = factor * right``, two columns of the
     system (``written`` says how columns are named)."""
@@ -302,6 +324,15 @@ def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, 
     if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
         raise CvxidError("spec: ties are [[model.tie]] tables with left, right and factor")
     ties = []
+    ratio: dict[str, tuple[str, float]] = {}  # column -> (its chain's root, column / root)
+
+    def root(c: str) -> tuple[str, float]:
+        r, f = ratio.get(c, (c, 1.0))
+        if r == c:
+            return c, 1.0
+        top, g = root(r)
+        return top, f * g
+
     for i, t in enumerate(tables):
         where = f"model.tie[{i}]"
         t = _table({f"tie[{i}]": t}, f"tie[{i}]", "model", {"left", "right", "factor"})
@@ -312,7 +343,19 @@ def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, 
                                  f"{', '.join(sorted(columns))}")
         if left == right:
             raise CvxidError(f"spec: [{where}] ties '{left}' to itself; name two different columns")
-        ties.append((left, right, float(_number(t, "factor", where, 1.0))))
+        factor = float(_number(t, "factor", where, 1.0))
+        if factor == 0:
+            raise CvxidError(f"spec: [{where}] factor = 0 forces '{left}' to 0: remove its term from the library "
+                             "instead of tying it")
+        (a, fa), (b, fb) = root(left), root(right)
+        if a == b:  # already joined by other ties: this one must say the same
+            if abs(fa - factor * fb) > 1e-9 * max(abs(fa), abs(factor * fb)):
+                raise CvxidError(f"spec: [{where}] contradicts the ties before it: they give {left} = "
+                                 f"{fa / fb:.6g} * {right}, this one {factor:g} (together they force both to 0); "
+                                 "remove one")
+            continue  # (the same statement again adds nothing)
+        ratio[a] = (b, factor * fb / fa)
+        ties.append((left, right, factor))
     return tuple(ties)
 
 
@@ -403,8 +446,16 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
     if "candidates" in d:
         candidates = tuple(_strings(d, "candidates", "diagnose"))
         coords = tuple(s.coordinate for s in equations.values())
+        if not candidates:
+            raise CvxidError("spec: [diagnose] candidates is empty: name the effects to try, or remove the key for "
+                             "the whole catalogue")
         for c in candidates:
-            if len(coords) == 1 or coordinate_effect(c, coords) is None:
+            effect_name, _, rest = c.partition("(")
+            if effect_name in CATALOGUE and rest.endswith(")") and coordinate_effect(c, coords) is None:
+                raise CvxidError(f"spec: [diagnose] candidates: '{c}' names no coordinate of the model; write "
+                                 f"{effect_name}(coordinate) with one of {', '.join(coords)}, or '{effect_name}' for "
+                                 "every coordinate's")
+            if coordinate_effect(c, coords) is None:
                 resolve_term(c, coords, first.effects)  # unknown names fail here, with the catalogue
     return DiagnoseSettings(
         candidates=candidates,
