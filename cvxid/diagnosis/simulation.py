@@ -51,7 +51,7 @@ from cvxid.diagnosis.compare import compare_system
 from cvxid.diagnosis.ranking import as_system
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.identify.output_error import PolishResult, linearisation, output_error, residual
+from cvxid.identify.output_error import PolishResult, linearisation, output_error, polish, residual
 from cvxid.identify.profile import effective_rows
 from cvxid.identify.score import block_score_gain
 from cvxid.parallel import one_blas_thread
@@ -197,10 +197,15 @@ def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | N
 
 
 def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experiment,
-                         candidates: Sequence[str] | None = None, max_steps: int = 5) -> SimulationRefinement:
+                         candidates: Sequence[str] | None = None, max_steps: int = 5,
+                         schedule: dict | None = None) -> SimulationRefinement:
     """Score the candidates missing from the polished system; try the significant ones,
     best first, each added and polished, until the test record's free-run error falls
-    beyond chance (then score again from the new system); at most ``max_steps`` tries."""
+    beyond chance (then score again from the new system); at most ``max_steps`` tries.
+    When an effect was kept, the final system is polished again as ``polished`` was
+    (``schedule``: :func:`~cvxid.identify.output_error.polish`'s settings): its delay's
+    profile, and every interval read from it, are of the system it reports (the first
+    polish's were of the system without the additions)."""
     current, steps, rankings = polished, [], []
     before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
     while before is not None and len(steps) < max_steps:
@@ -223,8 +228,12 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         if kept is None:
             break
         before = after
-        current = replace(kept, rms_before=current.rms_before, profile=current.profile,
-                          seconds=current.seconds + kept.seconds)
+        current = replace(kept, rms_before=current.rms_before, seconds=current.seconds + kept.seconds)
+    if current is not polished:
+        with warnings.catch_warnings():  # (its start is the kept fit: inside every bound)
+            warnings.simplefilter("ignore", CvxidWarning)
+            again = polish(current.system, train, initial=current.initial, **(schedule or {}))
+        current = replace(again, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
     return SimulationRefinement(current, steps, rankings)
 
 
