@@ -42,6 +42,10 @@ ROWS = 2000
 """Windowed rows wanted per record: one every tenth of a window, denser on short records."""
 TARGETS = 8
 """Regression targets (one per input delay) a block keeps; more are made again when asked."""
+DELAYED_FLOATS = 4_000_000
+"""Numbers a block keeps of its delayed signal's columns, by delay (32 MB): the delay
+profiles of one run (the whole library's, each candidate's refit) ask for the same grid of
+delays again and again; when full the cache starts over."""
 
 
 def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | None):
@@ -64,6 +68,7 @@ class _Block:
         self.transform, self.rows, self.segment = transform, rows, segment
         self.columns: dict[str, np.ndarray] = {}
         self.targets: dict[float, np.ndarray] = {}
+        self.delayed: dict[tuple[float, int], np.ndarray] = {}
 
 
 def usable_segments(experiments: list[Experiment], shortest: float) -> list[Experiment]:
@@ -190,6 +195,17 @@ class RegressionBuilder:
             block.columns[term.name] = block.transform.column(signal, order)
         return block.columns[term.name]
 
+    def _delayed(self, block: _Block, tau: float, derivative: int) -> np.ndarray:
+        """The column of the delayed signal's ``derivative`` at the delay ``tau`` (kept: see
+        :data:`DELAYED_FLOATS`)."""
+        key = (float(tau), int(derivative))
+        if key not in block.delayed:
+            if block.delayed and len(block.delayed) * next(iter(block.delayed.values())).size >= DELAYED_FLOATS:
+                block.delayed.clear()
+            t = self.experiments[block.segment].time[block.rows]
+            block.delayed[key] = block.transform.column(self._splines[block.segment](t - tau), derivative)
+        return block.delayed[key]
+
     def _input_rate(self, block: _Block, model: ModelSpec) -> np.ndarray:
         """The column of the received input's rate (a diagnosis candidate: a missing input delay)."""
         return block.transform.column(model.received_input(self.experiments[block.segment])[block.rows], 1)
@@ -222,13 +238,10 @@ class RegressionBuilder:
         Ps, ps = [], []
         for block in self.blocks:
             p = self._target(block, model)
-            if exact:
-                t = self.experiments[block.segment].time[block.rows]
-                shifted = self._splines[block.segment](t - tau)
-                if model.delay.gain is not None:
-                    p = p + model.delay.gain * block.transform.column(shifted, model.delay.derivative)
+            if exact and model.delay.gain is not None:
+                p = p + model.delay.gain * self._delayed(block, tau, model.delay.derivative)
             Ps.append(np.column_stack([
-                block.transform.column(shifted, c.term.derivative) if isinstance(c.term, DelayedSignal)
+                self._delayed(block, tau, c.term.derivative) if isinstance(c.term, DelayedSignal)
                 else self._input_rate(block, model) if isinstance(c.term, InputRate)
                 else self._column(block, c.term) for c in cols
             ]))
