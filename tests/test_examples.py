@@ -179,3 +179,17 @@ def test_init_columns_story(monkeypatch, tmp_path, capsys):
     table = pd.read_csv(tmp_path / "init_columns.csv")
     assert len(table) == 10 and table["init picks the position"].all()
     assert not table["smoother by noise level"].any()
+
+
+def test_coupled_heldout_story(monkeypatch, tmp_path, capsys):
+    """examples/coupled_heldout.py, small: two drawn coupled systems, a hidden cubic
+    stiffness (named, added alone, the fit rising to what the noise allows) and a control
+    (nothing added); seed 100, measured."""
+    out = run_example("coupled_heldout.py", monkeypatch, tmp_path, capsys, SEEDS="100:101",
+                      EFFECTS="none,cubic_stiffness", N_JOBS="1")
+    rows = {line.split()[0]: line.split() for line in out.splitlines()[2:4]}
+    assert rows["none"][4] == "100.0"  # nothing added to the control
+    cubic = rows["cubic_stiffness"]
+    assert cubic[2:5] == ["100.0", "100.0", "100.0"]  # named first, added first, nothing else
+    assert float(cubic[9]) >= float(cubic[10]) - 0.5  # the fit reaches what the noise allows
+    assert "0 runs failed" in out
