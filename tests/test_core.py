@@ -171,3 +171,27 @@ def test_a_delay_the_data_cannot_tell_gets_a_wide_interval_not_a_wrong_narrow_on
     row = run_one(10, "none", 0.01, 8.0)
     assert row["status"] == "ok", row["error"]
     assert row["covers"] and row["high"] - row["low"] > 0.1
+
+
+def test_a_builders_delayed_columns_are_kept_and_equal_fresh_ones(monkeypatch):
+    """The delayed signal's columns kept by delay (builder.DELAYED_FLOATS) give the
+    regression a fresh builder gives, before and after the cache starts over; one
+    equation's builder wrapped as a system (SystemBuilder.of) shares them."""
+    import cvxid.regression.builder as builder_module
+    from cvxid.regression.builder import RegressionBuilder, SystemBuilder
+    from cvxid.spec.load import load_problem
+
+    from .conftest import ROOT
+
+    spec = load_problem(ROOT / "problems" / "hidden_friction.toml")
+    train = spec.experiment("train")
+    kept = RegressionBuilder(spec.model, train)
+    first = kept.at(0.15)
+    monkeypatch.setattr(builder_module, "DELAYED_FLOATS", 3 * first.shape[0])  # three columns, then start over
+    for tau in (0.1, 0.12, 0.15, 0.2):
+        kept.at(tau)
+    assert max(len(b.delayed) for b in kept.blocks) <= 3
+    fresh = RegressionBuilder(spec.model, train).at(0.15)
+    assert np.array_equal(kept.at(0.15).P, fresh.P) and np.array_equal(first.P, fresh.P)
+    wrapped = SystemBuilder.of(kept)
+    assert wrapped.builders[spec.model.coordinate] is kept and np.array_equal(wrapped.at(0.15).P, fresh.P)

@@ -258,3 +258,18 @@ def test_an_added_effect_the_polish_sets_to_zero_is_said():
     out.polish = replace(out.polish, system=replace(out.polish.system, models={"x": zeroed}))
     with pytest.warns(CvxidWarning, match=r"the diagnosis added sign\(x'\), and the output-error polish set it to 0"):
         _warn_added_then_zero(out)
+
+
+def test_a_candidate_the_model_spans_explains_nothing():
+    """A column in the model's span scores ERR 0 (it scored rounding, 1e-4 ... 1e-3, when a
+    model at tau = 0 was offered x'(t - tau), that is x' itself)."""
+    from cvxid.diagnosis.ranking import _explained
+
+    rng = np.random.default_rng(0)
+    model, r = rng.standard_normal((200, 3)), rng.standard_normal(200)
+    Q, _ = np.linalg.qr(model)
+    inside = model @ [[1.0], [-2.0], [0.5]]
+    g, err = _explained(inside, Q, r)
+    assert err == 0.0 and not g.any()
+    both = np.column_stack([inside, rng.standard_normal(200)])
+    assert 0 < _explained(both, Q, r)[1] < 1  # the other column still counts

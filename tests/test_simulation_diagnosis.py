@@ -137,15 +137,16 @@ def test_a_coupled_system_lacking_a_cubic_stiffness_gets_it_from_the_simulation_
 def test_candidates_of_different_sizes_rank_by_significance_where_p_values_underflow():
     """A chi^2_2 of 3068 is more significant than a chi^2_2 of 2145, and that than a chi^2_1
     of 1919 (every p-value is 0.0 in floating point: ranked by them, the order was the
-    catalogue's); at a usual size the normal deviate is within 0.04 of the exact one."""
-    from scipy.stats import norm
+    catalogue's); a chi^2_1 of 1900 more than a chi^2_2 of 1600 (log10 p -414 and -347,
+    which a normal deviate by the cube root put the other way); at usual sizes the exact
+    log p-value."""
+    from cvxid.diagnosis.simulation import _log_significance
 
-    from cvxid.diagnosis.simulation import _normal_equivalent
-
-    z = _normal_equivalent([1919.0, 3068.0, 2145.0], [1, 2, 2])
-    assert list(np.argsort(-z)) == [1, 2, 0]
-    for x, k in [(6.63, 1), (9.21, 2), (11.3, 3)]:  # the 1 % points
-        assert _normal_equivalent(x, k) == pytest.approx(norm.isf(chi2.sf(x, k)), abs=0.04)
+    p = _log_significance([1919.0, 3068.0, 2145.0, 1900.0, 1600.0], [1, 2, 2, 1, 2])
+    assert list(np.argsort(p[:3])) == [1, 2, 0] and p[3] < p[4]
+    assert p[3] / np.log(10) == pytest.approx(-414.3, abs=0.1) and p[4] / np.log(10) == pytest.approx(-347.4, abs=0.1)
+    for x, k in [(6.63, 1), (9.21, 2), (11.3, 3), (700.0, 3)]:
+        assert _log_significance(x, k) == pytest.approx(chi2.logsf(x, k), rel=1e-12)
 
 
 LATE = """

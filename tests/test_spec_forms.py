@@ -189,3 +189,47 @@ def test_the_one_equation_form_takes_its_input_delay_where_a_coupled_spec_gives_
     raw["model"]["equation"][0]["input_delay"] = 0.1
     with pytest.raises(CvxidError, match=r"input_delay is given in \[model\] and in \[\[model.equation\]\]"):
         parse_problem(raw, ROOT)
+
+
+def test_a_chain_of_ties_holds_through_the_output_error_polish():
+    """Review: x^3 = 0.5 x and x = 15 x' (a chain) ended in a KeyError inside the polish, and
+    two ties of one left column broke one of them.  The spec gives every chain as a star
+    (each column a multiple of the chain's last), and the polish follows chains given
+    through the Python API; both ratios hold."""
+    from dataclasses import replace as _replace
+
+    from cvxid.model.system import SystemSpec
+
+    raw = tomllib.loads(TIED)
+    raw["model"]["tie"] = [{"left": "x^3", "right": "x", "factor": 0.5}, {"left": "x", "right": "x'", "factor": 15.0}]
+    raw["fit"] = {"estimator": "lstsq", "refine": "output_error"}
+    spec = parse_problem(raw, ROOT)
+    assert spec.system.ties == (("x^3", "x'", 7.5), ("x", "x'", 15.0))
+    chained = _replace(spec, system=SystemSpec(spec.system.equations, (("x^3", "x", 0.5), ("x", "x'", 15.0))))
+    for s in (spec, chained):
+        coefficients = run(s).model.coefficients
+        assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
+        assert coefficients["x"] == pytest.approx(15.0 * coefficients["x'"], rel=1e-9)
+
+
+def test_a_one_equation_truth_driven_by_another_input_is_refused():
+    raw = tomllib.loads(EQUATION_FORM)
+    raw["truth"]["equation"][0]["input"] = "-f"
+    with pytest.raises(CvxidError, match=r"\[\[truth.equation\]\] input = '-f' is not the model's input \('f'\)"):
+        parse_problem(raw, ROOT)
+
+
+def test_a_selection_with_least_squares_is_refused_for_one_equation_too():
+    raw = tomllib.loads(TIED)
+    raw["model"]["library"] = {"terms": ["x", "x'", "x^3"], "select": True}
+    with pytest.raises(CvxidError, match=r'\[model.library\] has select = true.*estimator = "lstsq" selects nothing'):
+        parse_problem(raw, ROOT)
+
+
+@pytest.mark.parametrize("candidate", ["delay(x)", "input_delay(x)"])
+def test_the_systems_delays_are_not_one_coordinates(candidate):
+    """Review: "delay(x)" passed the spec and crashed the run (a DelayedSignal term)."""
+    raw = tomllib.loads(EQUATION_FORM)
+    raw["diagnose"] = {"candidates": [candidate]}
+    with pytest.raises(CvxidError, match="the delay and the input's delay are the system's"):
+        parse_problem(raw, ROOT)

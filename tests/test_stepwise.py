@@ -161,3 +161,24 @@ def test_columns_a_tie_joins_are_added_and_removed_together():
     result = run(parse_problem(raw, ROOT))
     coefficients = result.model.coefficients
     assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9) and coefficients["x^3"] != 0
+
+
+def test_the_pruning_keeps_a_column_tied_outside_the_library_and_reports_columns():
+    """Review: a term tied to the inertia (x'^3 = 0.001 x'') was pruned, the tie still
+    listed; the unit of columns tied outside the library stays, as in the stepwise search.
+    And Pruning.removed names columns (a tied unit's every one), not the unit's key."""
+    import pandas as pd
+
+    from cvxid.identify.stepwise import Pruning
+
+    from .test_spec_forms import TIED
+
+    raw = tomllib.loads(TIED)
+    raw["model"]["library"] = {"terms": ["x", "x'", "x^3", "x'^3"], "select": True}
+    raw["model"]["tie"] = [{"left": "x'^3", "right": "x''", "factor": 0.001}]
+    raw["fit"] = {"estimator": "lasso", "refine": "output_error"}
+    result = run(parse_problem(raw, ROOT))
+    coefficients = result.model.coefficients
+    assert coefficients["x'^3"] == pytest.approx(0.001 * coefficients["x''"], rel=1e-9) and coefficients["x'^3"] != 0
+    history = pd.DataFrame([{"action": "remove", "term": "x^3 = x^5", "columns": ["x^3", "x^5"]}])
+    assert Pruning(history, 0.0, 0.0, None).removed == ["x^3", "x^5"]

@@ -42,6 +42,7 @@ from typing import Sequence
 
 import numpy as np
 import pandas as pd
+from scipy.special import gammaln
 from scipy.stats import chi2
 
 from cvxid.data.experiment import Experiment
@@ -114,7 +115,7 @@ def score_candidates(fitted: IdentifiedModel | IdentifiedSystem, train: Experime
                      initial=None) -> pd.DataFrame:
     """Each candidate's score statistic (see the module docstring) at the polished
     ``fitted`` (one equation or a system) on ``train``, most significant first (by
-    :func:`_normal_equivalent`: the largest statistic among candidates of one size):
+    :func:`_log_significance`: the largest statistic among candidates of one size):
     ``term``,
     ``meaning``, ``score`` (its :math:`\\chi^2_k` value), ``df`` (:math:`k`, the equations it
     joins), ``share`` (of the simulation error it explains to first order).  A candidate
@@ -147,22 +148,26 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
         rows.append({"effect": name, "term": candidate.term.name, "meaning": candidate.term.meaning,
                      "score": statistic, "df": len(columns), "share": share})
     frame = pd.DataFrame(rows, columns=["effect", "term", "meaning", "score", "df", "share"]).set_index("effect")
-    order = frame.assign(z=_normal_equivalent(frame["score"], frame["df"])).sort_values("z", ascending=False).index
+    order = frame.assign(z=-_log_significance(frame["score"], frame["df"])).sort_values("z", ascending=False).index
     return frame.loc[order]
 
 
-def _normal_equivalent(statistic, df):
-    r"""A :math:`\chi^2_k` statistic as the standard normal deviate of (about) the same
-    p-value, Wilson and Hilferty's cube root,
+def _log_significance(statistic, df) -> np.ndarray:
+    r"""The natural log of each :math:`\chi^2_k` statistic's p-value, :math:`\log Q(k/2, x/2)`
+    (the upper regularised gamma function), which orders candidates of different sizes by
+    their significance.  Past :math:`x \approx 1400` the p-value itself underflows to 0: there
+    its asymptotic expansion,
 
     .. math::
 
-        z = \frac{(x/k)^{1/3} - 1 + 2/(9k)}{\sqrt{2/(9k)}},
-
-    increasing in :math:`x` for each :math:`k`, so candidates of different sizes rank by
-    their significance where the p-value itself underflows to 0 (past :math:`x \approx 1400`)."""
+        \log Q(a, y) \approx -y + (a - 1)\log y - \log\Gamma(a) + \log\Big(1 + \frac{a-1}{y}\Big).
+    """
     x, k = np.asarray(statistic, float), np.asarray(df, float)
-    return (np.cbrt(x / k) - 1 + 2 / (9 * k)) / np.sqrt(2 / (9 * k))
+    a, y = k / 2, np.maximum(x / 2, 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):  # (each form where the other is taken)
+        exact = chi2.logsf(x, k)
+        asymptotic = -y + (a - 1) * np.log(y) - gammaln(a) + np.log1p((a - 1) / y)
+    return np.where(np.isfinite(exact) & (exact > -700), exact, asymptotic)
 
 
 def _coefficients(candidate: Candidate) -> tuple[str | None, ...]:
@@ -205,7 +210,9 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     When an effect was kept, the final system is polished again as ``polished`` was
     (``schedule``: :func:`~cvxid.identify.output_error.polish`'s settings): its delay's
     profile, and every interval read from it, are of the system it reports (the first
-    polish's were of the system without the additions)."""
+    polish's were of the system without the additions); should that polish fit the
+    training record worse than the kept fit did, the kept fit is reported, its intervals
+    the standard errors' alone."""
     current, steps, rankings = polished, [], []
     before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
     while before is not None and len(steps) < max_steps:
@@ -233,7 +240,10 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         with warnings.catch_warnings():  # (its start is the kept fit: inside every bound)
             warnings.simplefilter("ignore", CvxidWarning)
             again = polish(current.system, train, initial=current.initial, **(schedule or {}))
-        current = replace(again, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
+        # the model the test record judged, unless the profile found it a better fit of the
+        # same terms; without a profile of its own its intervals are the standard errors'
+        kept = again if again.rms_after <= current.rms_after * (1 + 1e-3) else replace(current, profile=None)
+        current = replace(kept, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
     return SimulationRefinement(current, steps, rankings)
 
 

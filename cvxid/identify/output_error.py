@@ -566,6 +566,19 @@ def _problem_at(fitted, experiments, initial, step) -> "_Problem":
     return _Problem(system, experiments, step or experiments[0].dt, initial)
 
 
+def _rooted(tied: dict[str, tuple[str, float]]) -> dict[str, tuple[str, float]]:
+    """Ties ``left -> (right, factor)`` with every chain followed to its free end (``a = 2 b``
+    and ``b = 3 c`` give ``a = 6 c``): each tied parameter a multiple of a fitted one."""
+    out = {}
+    for a, (b, f) in tied.items():
+        seen = {a}
+        while b in tied and b not in seen:
+            seen.add(b)
+            b, f = tied[b][0], f * tied[b][1]
+        out[a] = (b, f)
+    return out
+
+
 class _Problem:
     """Parameters ↔ simulations of the system for :func:`output_error`."""
 
@@ -599,8 +612,8 @@ class _Problem:
                 columns[system.column(label, term.name)] = self._name(label, spec.parameter_name(term.name), term.name)
             if self.delay is not None and spec.delay.gain is None:
                 columns[system.column(label, spec.delayed_term.name)] = self._name(label, "gain", "gain")
-        self.tied = {columns[a]: (columns[b], f) for a, b, f in system.ties
-                     if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)}
+        self.tied = _rooted({columns[a]: (columns[b], f) for a, b, f in system.ties
+                             if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)})
         for label, model in system.models.items():
             spec, s = model.spec, self.systems[label]
             if spec.inertia:

@@ -87,7 +87,7 @@ class Stepwise:
 
     def __repr__(self) -> str:
         lines = [f"Stepwise selection by simulation error ({self.seconds:.1f} s, noise level {self.noise:.4g}):"]
-        lines += ["  " + line for line in self.history.to_string(index=False).splitlines()]
+        lines += ["  " + line for line in self.history.drop(columns="columns").to_string(index=False).splitlines()]
         return "\n".join(lines)
 
 
@@ -114,11 +114,15 @@ one is then converged on the step itself)."""
 
 
 
+ANCHORED = " (tied outside the library)"
+"""The name's end of the unit of columns tied to one outside the library: never removed."""
+
+
 def units(system: SystemSpec, columns: Sequence[str]) -> dict[str, tuple[str, ...]]:
     """The ``columns`` as the search adds and removes them: each alone, and columns a chain
     of ties joins as one unit (a tie keeps both of its columns or neither), named by its
     columns joined with ``" = "``.  The columns tied to one outside ``columns`` (an inertia, a
-    listed term) form one last unit that the search keeps in every model."""
+    listed term) form one last unit that the search and the pruning keep in every model."""
     root = {c: c for c in columns}
 
     def find(c):
@@ -137,7 +141,7 @@ def units(system: SystemSpec, columns: Sequence[str]) -> dict[str, tuple[str, ..
         groups.setdefault(find(c), []).append(c)
     out = {" = ".join(g): tuple(g) for g in groups.values() if not anchored & set(g)}
     fixed = tuple(c for g in groups.values() if anchored & set(g) for c in g)
-    return out | ({" + ".join(fixed) + " (tied outside the library)": fixed} if fixed else {})
+    return out | ({" + ".join(fixed) + ANCHORED: fixed} if fixed else {})
 
 
 def _flat(keys: Sequence[str], members: dict[str, tuple[str, ...]]) -> list[str]:
@@ -180,7 +184,7 @@ def _polished(fit, train: Experiment, step: float, rows: list[dict], schedule: d
         warnings.simplefilter("ignore", CvxidWarning)
         final = polish(fit.system, train, initial=fit.initial, **{"coarse_step": step, **(schedule or {})})
     action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
-    rows.append({"step": len(rows), "action": action, "term": "", "rms": final.rms_after})
+    rows.append({"step": len(rows), "action": action, "term": "", "columns": [], "rms": final.rms_after})
     return final
 
 
@@ -325,7 +329,7 @@ def _backward(pool, fit, rms, current, base, members, train, step, floor, tolera
             return fit, rms
         current.remove(name)
         fit, rms = trials[name]
-        rows.append({"step": len(rows), "action": "remove", "term": name, "rms": rms})
+        rows.append({"step": len(rows), "action": "remove", "term": name, "columns": list(members[name]), "rms": rms})
 
 
 @one_blas_thread
@@ -347,7 +351,7 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
     if unknown:
         raise CvxidError(f"stepwise base term(s) {', '.join(sorted(unknown))} are not in the library")
     members = units(system, names)
-    base = [k for k, m in members.items() if set(m) & set(base) or k.endswith("(tied outside the library)")]
+    base = [k for k, m in members.items() if set(m) & set(base) or k.endswith(ANCHORED)]
     sigma = noise_of(train, system)
     step = max(step, train.dt)
     tau = None
@@ -361,7 +365,8 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
         fit = output_error(_start(system, rows.at(tau), _flat(base, members), tau), train, step=step,
                            max_iterations=25)
     current, rms = list(base), fit.rms_after
-    history = [{"step": 0, "action": "start", "term": ", ".join(_flat(base, members)) or "(none)", "rms": rms}]
+    history = [{"step": 0, "action": "start", "term": ", ".join(_flat(base, members)) or "(none)",
+                "columns": _flat(base, members), "rms": rms}]
     with Parallel(n_jobs=n_jobs) as pool:
         while len(current) < len(members):
             added = _addition(pool, system, rows, fit, current, members, train, step, (1 - min_gain) * rms, sigma)
@@ -369,7 +374,8 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
                 break
             name, fit, rms = added
             current.append(name)
-            history.append({"step": len(history), "action": "add", "term": name, "rms": rms})
+            history.append({"step": len(history), "action": "add", "term": name, "columns": list(members[name]),
+                            "rms": rms})
         fit, rms = _backward(pool, fit, rms, current, base, members, train, step, (1 + tolerance) * sigma, tolerance,
                              history)
     final = _polished(fit, train, step, history, schedule)
@@ -392,12 +398,13 @@ class Pruning:
 
     @property
     def removed(self) -> list[str]:
-        return [row.term for row in self.history.itertuples() if row.action == "remove"]
+        """The columns it removed (a tied unit's every column)."""
+        return [c for row in self.history.itertuples() if row.action == "remove" for c in row.columns]
 
     def __repr__(self) -> str:
         removed = ", ".join(self.removed) or "nothing"
         lines = [f"Pruning by simulation error ({self.seconds:.1f} s, noise level {self.noise:.4g}): removed {removed}"]
-        lines += ["  " + line for line in self.history.to_string(index=False).splitlines()]
+        lines += ["  " + line for line in self.history.drop(columns="columns").to_string(index=False).splitlines()]
         return "\n".join(lines)
 
 
@@ -429,11 +436,11 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
                   for label, s in cut.equations.items()}
         fit, rms = _trial(_system_of(models, cut.ties), train, step)
         rows.append({"step": 0, "action": "start" if fit is not None else "start: its simulation diverged, nothing "
-                     "pruned", "term": ", ".join(current), "rms": rms})
+                     "pruned", "term": ", ".join(current), "columns": list(current), "rms": rms})
         if fit is not None:
             members = units(spec, current)
             keys = list(members)
-            kept = [k for k, m in members.items() if not set(m) <= set(removable)]
+            kept = [k for k, m in members.items() if not set(m) <= set(removable) or k.endswith(ANCHORED)]
             with Parallel(n_jobs=1) as pool:
                 fit, rms = _backward(pool, fit, rms, keys, kept, members, train, step, (1 + tolerance) * sigma,
                                      tolerance, rows)
@@ -445,5 +452,5 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
                                         final.models[label].lam, final.models[label].info, final.models[label].tau)
                  for label, m in system.models.items()}
         polished = replace(pruned, system=replace(pruned.system, models=whole, ties=system.ties))
-    return Pruning(pd.DataFrame(rows, columns=["step", "action", "term", "rms"]), sigma,
+    return Pruning(pd.DataFrame(rows, columns=["step", "action", "term", "columns", "rms"]), sigma,
                    time.perf_counter() - start, polished)

@@ -147,7 +147,7 @@ def coordinate_effect(text: str, coordinates: tuple[str, ...]) -> tuple[str, str
     text."""
     name, _, rest = text.partition("(")
     coordinate = rest[:-1] if rest.endswith(")") else None
-    return (name, coordinate) if name in CATALOGUE and coordinate in coordinates else None
+    return (name, coordinate) if name in CATALOGUE and name not in PARAMETERS and coordinate in coordinates else None
 
 
 def resolve_term(text: str, coordinates: tuple[str, ...] = ("x",),

@@ -43,9 +43,10 @@ ROWS = 2000
 TARGETS = 8
 """Regression targets (one per input delay) a block keeps; more are made again when asked."""
 DELAYED_FLOATS = 4_000_000
-"""Numbers a block keeps of its delayed signal's columns, by delay (32 MB): the delay
-profiles of one run (the whole library's, each candidate's refit) ask for the same grid of
-delays again and again; when full the cache starts over."""
+"""Numbers each block of each equation's builder keeps of its delayed signal's columns, by
+delay (32 MB; a record cut by gaps into S stretches, of N equations, may keep N S times
+that): the delay profiles of one run (the whole library's, each candidate's refit) ask for
+the same grid of delays again and again; when full the cache starts over."""
 
 
 def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | None):
@@ -199,12 +200,14 @@ class RegressionBuilder:
         """The column of the delayed signal's ``derivative`` at the delay ``tau`` (kept: see
         :data:`DELAYED_FLOATS`)."""
         key = (float(tau), int(derivative))
-        if key not in block.delayed:
-            if block.delayed and len(block.delayed) * next(iter(block.delayed.values())).size >= DELAYED_FLOATS:
-                block.delayed.clear()
+        column = block.delayed.get(key)
+        if column is None:
             t = self.experiments[block.segment].time[block.rows]
-            block.delayed[key] = block.transform.column(self._splines[block.segment](t - tau), derivative)
-        return block.delayed[key]
+            column = block.transform.column(self._splines[block.segment](t - tau), derivative)
+            if len(block.delayed) * column.size >= DELAYED_FLOATS:
+                block.delayed.clear()
+            block.delayed[key] = column
+        return column
 
     def _input_rate(self, block: _Block, model: ModelSpec) -> np.ndarray:
         """The column of the received input's rate (a diagnosis candidate: a missing input delay)."""

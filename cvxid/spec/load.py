@@ -71,18 +71,24 @@ def single_equation_form(raw: Table) -> dict:
     out["model"] = single
     coordinate = single.get("coordinate", "x")
     if isinstance(raw.get("truth"), Mapping) and "equation" in raw["truth"]:
-        out["truth"] = _single_truth(raw["truth"])
+        out["truth"] = _single_truth(raw["truth"], str(single.get("input", "f")))
     if isinstance(raw.get("data"), Mapping):
         out["data"] = {k: _single_data(v, coordinate) for k, v in raw["data"].items()}
     return out
 
 
-def _single_truth(truth: Table) -> dict:
+def _single_truth(truth: Table, model_input: str) -> dict:
+    """The one ``[[truth.equation]]`` as ``[truth]``: driven by the model's input (a
+    different one named is refused)."""
     truth = dict(truth)
     equations = truth.pop("equation")
     if not isinstance(equations, list) or len(equations) != 1 or not isinstance(equations[0], Mapping):
         raise CvxidError("spec: a one-equation model needs exactly one [[truth.equation]] table")
     (equation,) = equations
+    if str(equation.get("input", model_input)) != model_input:
+        raise CvxidError(f"spec: [[truth.equation]] input = '{equation['input']}' is not the model's input "
+                         f"('{model_input}'): a one-equation truth is driven by the input its model reads; name "
+                         "the same one")
     if "smoothing" in truth:
         raise CvxidError("spec: [truth] smoothing is for coupled specs; write the smoothed term in [truth] "
                          "coefficients instead")

@@ -26,7 +26,7 @@ from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
-from cvxid.model.library import CATALOGUE, Effect, Library, coordinate_effect, declared_effect, resolve_term
+from cvxid.model.library import CATALOGUE, PARAMETERS, Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import parse_term
 from cvxid.parallel import BACKENDS, check_backend
@@ -319,11 +319,14 @@ def check_selection(fit: FitSettings, equations: dict[str, ModelSpec], polynomia
 
 def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, str, float], ...]:
     """The checked ``[[model.tie]]`` tables: ``left = factor * right``, two columns of the
-    system (``written`` says how columns are named)."""
+    system (``written`` says how columns are named); ties that contradict each other are
+    refused.  Chains are returned as stars: every tied column as a multiple of its chain's
+    last column (``x^3 = 0.5 x`` and ``x = 15 x'`` become ``x^3 = 7.5 x'`` and
+    ``x = 15 x'``), so that no column is tied twice, the form the output-error fit reads."""
     tables = model.get("tie", [])
     if not isinstance(tables, list) or not all(isinstance(t, Mapping) for t in tables):
         raise CvxidError("spec: ties are [[model.tie]] tables with left, right and factor")
-    ties = []
+    named: list[str] = []  # the tied columns, in the order they were first named
     ratio: dict[str, tuple[str, float]] = {}  # column -> (its chain's root, column / root)
 
     def root(c: str) -> tuple[str, float]:
@@ -355,8 +358,13 @@ def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, 
                                  "remove one")
             continue  # (the same statement again adds nothing)
         ratio[a] = (b, factor * fb / fa)
-        ties.append((left, right, factor))
-    return tuple(ties)
+        named += [c for c in (left, right) if c not in named]
+    stars = []
+    for c in named:
+        top, f = root(c)
+        if top != c:
+            stars.append((c, top, f))
+    return tuple(stars)
 
 
 def data_sections(raw: Table) -> dict[str, dict]:
@@ -451,6 +459,9 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
                              "the whole catalogue")
         for c in candidates:
             effect_name, _, rest = c.partition("(")
+            if effect_name in PARAMETERS and rest:
+                raise CvxidError(f"spec: [diagnose] candidates: '{c}': the delay and the input's delay are the "
+                                 f"system's, one each; write '{effect_name}'")
             if effect_name in CATALOGUE and rest.endswith(")") and coordinate_effect(c, coords) is None:
                 raise CvxidError(f"spec: [diagnose] candidates: '{c}' names no coordinate of the model; write "
                                  f"{effect_name}(coordinate) with one of {', '.join(coords)}, or '{effect_name}' for "
