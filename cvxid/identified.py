@@ -292,8 +292,10 @@ class IdentifiedSystem:
     info: dict = field(default_factory=dict)
 
     @classmethod
-    def of(cls, model: IdentifiedModel) -> "IdentifiedSystem":
-        """The system of one identified equation."""
+    def of(cls, model: "IdentifiedModel | IdentifiedSystem") -> "IdentifiedSystem":
+        """The system of one identified equation (a system is itself)."""
+        if isinstance(model, IdentifiedSystem):
+            return model
         return cls({model.spec.coordinate: model}, model.tau, info=dict(model.info))
 
     @property

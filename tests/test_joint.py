@@ -172,15 +172,22 @@ def test_joint_selection_drops_terms_the_rig_does_not_have():
     assert result.to_dict()["lambda"] > 0
 
 
-def _without_friction(**fit):
-    """The flexible-joint spec with its truth's friction removed (so the starting library
-    is the true structure), 30 s of training, equation error only."""
+def _raw_without_friction(train: float):
+    """The flexible-joint spec's table with its truth's friction removed (so the starting
+    library is the true structure), ``train`` seconds of training, 8 s of test, no
+    diagnosis."""
     raw = _raw()
-    raw["data"]["train"]["simulate"]["duration"] = 30.0
+    raw["data"]["train"]["simulate"]["duration"] = train
     raw["data"]["test"]["simulate"]["duration"] = 8.0
     for equation in raw["truth"]["equation"]:
         equation["coefficients"].pop("sign(theta')")
     raw.pop("diagnose")
+    return raw
+
+
+def _without_friction(**fit):
+    """:func:`_raw_without_friction` on 30 s, equation error only."""
+    raw = _raw_without_friction(30.0)
     raw["fit"] = {"velocity": "savgol", "window": 1.0, **fit}
     return parse_problem(raw, SPEC.parent)
 
@@ -330,12 +337,7 @@ def test_a_coupled_spec_searches_the_order_of_every_polynomial_library():
     """[fit] orders on a coupled spec (it was refused): each equation's polynomial library
     is cut to each order, the system scored on the test record, the least test error kept;
     the ties hold at every order, and each equation keeps its extra terms."""
-    raw = _raw()
-    raw["data"]["train"]["simulate"]["duration"] = 20.0
-    raw["data"]["test"]["simulate"]["duration"] = 8.0
-    for equation in raw["truth"]["equation"]:
-        equation["coefficients"].pop("sign(theta')")
-    raw.pop("diagnose")
+    raw = _raw_without_friction(20.0)
     raw["model"]["equation"][0]["library"] = {"order": 3, "cross": False, "extra": ["alpha", "alpha'"]}
     raw["model"]["equation"][1]["library"] = {"order": 3, "cross": False, "extra": ["theta'"]}
     raw["fit"] = {"estimator": "lasso", "velocity": "savgol", "window": 1.0, "orders": {"min": 1, "max": 3},
@@ -369,12 +371,7 @@ def test_a_coupled_selection_runs_stability_selection_on_the_same_stretches_of_e
     """Stability selection for N > 1 (it was refused): on halves of the record, each the same
     stretches of time of both equations, the true coupling terms are kept on most halves and
     the spurious cubic ones on few; 15 s noise 0.001, the friction removed from the truth."""
-    raw = _raw()
-    raw["data"]["train"]["simulate"]["duration"] = 15.0
-    raw["data"]["test"]["simulate"]["duration"] = 8.0
-    raw.pop("diagnose")
-    for equation in raw["truth"]["equation"]:
-        equation["coefficients"].pop("sign(theta')")
+    raw = _raw_without_friction(15.0)
     for equation in raw["model"]["equation"]:
         equation["library"]["terms"] += ["theta", "theta^3", "theta'^3"]
         equation["library"]["select"] = True

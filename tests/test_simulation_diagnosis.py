@@ -62,6 +62,18 @@ def test_the_loop_adds_the_missing_term_when_the_test_record_agrees():
     assert not any(step.kept for step in out.steps[1:])  # nothing else belongs in the model
 
 
+def records(train: float, test: float, noise: float, train_input: str, test_input: str) -> str:
+    """The [data] tables of a simulated spec: 2 ms sampling, seeds 1 and 2."""
+    return "".join(f"""
+[data.{which}.simulate]
+duration = {duration}
+dt = 2e-3
+seed = {seed}
+noise = {{ output = {noise} }}
+input = {excitation}""" for which, duration, seed, excitation in (("train", train, 1, train_input),
+                                                               ("test", test, 2, test_input))) + "\n"
+
+
 COUPLED = """name = "coupled_cubic"
 [truth]
 history = "zero"
@@ -78,18 +90,9 @@ mass = 1.0
 input = "u"
 delay_gain = 0.5
 coefficients = { "y'" = 0.3, "y" = 4.0, "x" = -2.0 }
-[data.train.simulate]
-duration = 10.0
-dt = 2e-3
-seed = 1
-noise = { output = 0.002 }
-input = [{ kind = "sine", amplitude = 3.0, omega = 1.9 }, { kind = "sine", amplitude = 2.0, omega = 4.7 }]
-[data.test.simulate]
-duration = 8.0
-dt = 2e-3
-seed = 2
-noise = { output = 0.002 }
-input = [{ kind = "sine", amplitude = 2.5, omega = 2.9 }, { kind = "sine", amplitude = 2.5, omega = 6.1 }]
+""" + records(10.0, 8.0, 0.002, '[{ kind = "sine", amplitude = 3.0, omega = 1.9 }, '
+                                 '{ kind = "sine", amplitude = 2.0, omega = 4.7 }]',
+              '[{ kind = "sine", amplitude = 2.5, omega = 2.9 }, { kind = "sine", amplitude = 2.5, omega = 6.1 }]') + """
 [model.delay]
 signal = "x"
 method = "exact"
@@ -156,18 +159,9 @@ coefficients = { "x'" = 0.4, "x" = 6.0, "x^3" = 3.0, "sign(x')" = 0.4 }
 delay = { signal = "x", gain = -1.5, tau = 0.15 }
 history = "zero"
 input_delay = 0.03
-[data.train.simulate]
-duration = 20.0
-dt = 2e-3
-seed = 1
-noise = { output = 0.005 }
-input = [{ kind = "sine", amplitude = 4.0, omega = 1.3 }, { kind = "quadratic_chirp", amplitude = 3.0, rate = 0.1 }]
-[data.test.simulate]
-duration = 10.0
-dt = 2e-3
-seed = 2
-noise = { output = 0.005 }
-input = [{ kind = "square", amplitude = 3.0, frequency = 0.3 }, { kind = "sine", amplitude = 2.0, omega = 2.7 }]
+""" + records(20.0, 10.0, 0.005, '[{ kind = "sine", amplitude = 4.0, omega = 1.3 }, '
+                                 '{ kind = "quadratic_chirp", amplitude = 3.0, rate = 0.1 }]',
+              '[{ kind = "square", amplitude = 3.0, frequency = 0.3 }, { kind = "sine", amplitude = 2.0, omega = 2.7 }]') + """
 [model]
 library = { terms = ["x'", "x", "x^3"] }
 delay = { signal = "x", gain = -1.5, method = "exact", tau_min = 0.05, tau_max = 0.3 }

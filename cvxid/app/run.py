@@ -404,22 +404,22 @@ one start, a coarser first step, no delay profile (a coupled record is long and 
 coordinate is simulated; on the flexible joint the default schedule took 32 s, this one 2)."""
 
 
-def _schedule(system) -> dict:
-    """The output-error polish's settings for ``system`` (a spec or an identified system):
-    :data:`COUPLED_POLISH` for several equations, the defaults for one."""
-    return COUPLED_POLISH if len(system.equations if isinstance(system, SystemSpec) else system.models) > 1 else {}
+def _schedule(system: SystemSpec) -> dict:
+    """The output-error polish's settings for ``system``: :data:`COUPLED_POLISH` for
+    several equations, the defaults for one."""
+    return COUPLED_POLISH if system.single is None else {}
 
 
 def _polish(out: RunResult):
     """The output-error polish of every coordinate; its delay interval replaces the
     profile's.  With ``[diagnose] refine`` and a test record, then the diagnosis by
     simulation error (:mod:`cvxid.diagnosis.simulation`)."""
-    out.polish = polish(out.system, out.train, **_schedule(out.system))
+    out.polish = polish(out.system, out.train, **_schedule(out.system.spec))
     _prune(out)
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
-                                                         settings.max_steps, _schedule(out.system))
+                                                         settings.max_steps, _schedule(out.system.spec))
         out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
     _delays_of_polish(out)
@@ -456,7 +456,7 @@ def _prune(out: RunResult) -> None:
     removable = [system.column(label, n) for label, spec in system.specs.items() for n in spec.library.names
                  if n not in spec.listed and n not in spec.linear_terms and system.column(label, n) not in added]
     if removable:
-        out.pruning = prune_by_simulation(out.polish, out.train, removable, schedule=_schedule(out.system))
+        out.pruning = prune_by_simulation(out.polish, out.train, removable, schedule=_schedule(out.system.spec))
         out.polish = out.pruning.polish
 
 

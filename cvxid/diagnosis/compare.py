@@ -8,10 +8,9 @@ The fit of a simulated output :math:`\hat y` to the measured :math:`y` is
     \text{fit} = 100\,\Big(1 - \frac{\|y-\hat y\|}{\|y-\bar y\|}\Big)\ \%,
     \qquad \text{NRMSE} = \frac{\|y-\hat y\|}{\|y-\bar y\|}.
 
-:func:`compare` is one equation's :class:`Comparison`; :func:`compare_system` gives one
-:class:`Comparison` per coordinate of a system of :math:`N \ge 1` equations, from one
-joint free run and one batch of k-step-ahead windows (for :math:`N = 1` it is
-:func:`compare`).
+:func:`compare_system` gives one :class:`Comparison` per coordinate of a system of
+:math:`N \ge 1` equations, from one joint free run and one batch of k-step-ahead windows;
+:func:`compare` is one equation's.
 """
 
 from __future__ import annotations
@@ -106,44 +105,15 @@ def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None =
     else the state ``initial`` names: ``"estimated"`` (least squares over the compared
     record, as MATLAB's ``compare`` does; the fit from the record's own start is kept
     beside it) or ``"record"`` (the record's smoothed first state).  An identified system
-    of one equation is its model; a coupled one compares with its own
-    :meth:`~cvxid.identified.IdentifiedSystem.compare`."""
+    of one equation is its model; a coupled one compares with :func:`compare_system`."""
     if isinstance(model, IdentifiedSystem):
         if model.single is None:
             raise CvxidError(f"compare takes one equation's model; this system has {len(model.models)} coupled "
-                             "equations: use system.compare(experiment), the fit of every coordinate")
+                             "equations: use system.compare(experiment), the fit of every coordinate, or "
+                             "cvxid.compare_system(system, experiment), each coordinate's Comparison")
         model = model.single
-    check_initial_state(initial)
-    experiment, note = longest_stretch(experiment)
-    y = experiment.output(model.spec.coordinate)
-    k = k_step or k_step_samples(experiment.dt)
-    start = start_index(experiment, model.spec.delay)
-    coord, measured = model.spec.coordinate, y[start:]
-    given = x0 is not None or v0 is not None
-    initial = "given" if given else initial
-    record_fit = record_sim = state = None
-    try:
-        run = model.simulator(experiment)
-        guess = model.initial_state(experiment)
-        own = (guess[0] if x0 is None else x0, guess[1] if v0 is None else v0)
-        starts, sims, record = free_run(lambda s: {coord: run(*s[coord])[0][start:]}, {coord: measured},
-                                        {coord: own}, "record" if given else initial)
-        state, sim = starts[coord], sims[coord]
-        if record is not None:
-            record_sim = record[coord]
-            record_fit = fit_percent(measured, record_sim)
-        free, nrmse, message = fit_percent(measured, sim), float(np.linalg.norm(measured - sim)
-                                                                / np.linalg.norm(measured - measured.mean())), ""
-    except SimulationDiverged as exc:
-        sim, free, nrmse, message = None, None, None, f"free run: {exc}"
-    try:
-        ahead = fit_percent(y, k_step_prediction(model, experiment, k))
-    except SimulationDiverged as exc:
-        ahead = None
-        message = (message + "; " if message else "") + f"k-step: {exc}"
-    message = "; ".join(m for m in (note, message) if m)
-    return Comparison(experiment.time[start:], measured, sim, free, nrmse, k, ahead, message,
-                      initial, state, record_fit, record_sim, noise_ceiling_percent(measured))
+    given = None if x0 is None and v0 is None else {model.spec.coordinate: (x0, v0)}
+    return compare_system(model, experiment, k_step, initial, given)[model.spec.coordinate]
 
 
 def longest_stretch(experiment: Experiment) -> tuple[Experiment, str]:
@@ -221,16 +191,14 @@ def measured_delayed(tau: float, history: str, derivative: int, t: np.ndarray, x
 
 
 def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Experiment, k_step: int | None = None,
-                   initial: str = "estimated") -> dict[str, Comparison]:
+                   initial: str = "estimated", given: dict[str, tuple[float | None, float | None]] | None = None
+                   ) -> dict[str, Comparison]:
     """:func:`compare` for every coordinate of a system of :math:`N \\ge 1` equations, by
     coordinate: one free run of all coordinates together from the start ``initial`` names
-    (estimated jointly, :mod:`cvxid.initial_state`), and the k-step-ahead windows of
-    :func:`k_step_predictions`.  For one equation it is :func:`compare`."""
-    if isinstance(system, IdentifiedModel):
-        system = IdentifiedSystem.of(system)
-    if system.single is not None:
-        model = system.single
-        return {model.spec.coordinate: compare(model, experiment, k_step, initial=initial)}
+    (estimated jointly, :mod:`cvxid.initial_state`) or from the state ``given`` (coordinate
+    -> (position, velocity); a None is the record's own), and the k-step-ahead windows of
+    :func:`k_step_predictions`."""
+    system = IdentifiedSystem.of(system)
     check_initial_state(initial)
     experiment, note = longest_stretch(experiment)
     k = k_step or k_step_samples(experiment.dt)
@@ -238,9 +206,13 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
     start = start_index(experiment, next(iter(system.specs.values())).delay)
     measured = {c: experiment.output(c)[start:] for c in coords}
     run, own, message = system.simulator(experiment), system.initial_state(experiment), ""
+    if given:
+        own = {c: tuple(o if g is None else g for o, g in zip(own[c], given.get(c, (None, None)))) for c in coords}
+        initial = "given"
     state, sims, record = None, None, None
     try:
-        state, sims, record = free_run(lambda s: {c: v[start:] for c, v in run(s).items()}, measured, own, initial)
+        state, sims, record = free_run(lambda s: {c: v[start:] for c, v in run(s).items()}, measured, own,
+                                       "record" if given else initial)
     except SimulationDiverged as exc:
         message = f"free run: {exc}"
     try:

@@ -96,11 +96,6 @@ class Diagnosis:
         return text
 
 
-def as_system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
-    """One identified equation as the system of one equation; a system as it is."""
-    return fitted if isinstance(fitted, IdentifiedSystem) else IdentifiedSystem.of(fitted)
-
-
 def builders_for(system: IdentifiedSystem, train: Experiment, test: Experiment | None, velocity: str,
              window: float | str | None, given=None) -> tuple[SystemBuilder, SystemBuilder | None]:
     """The train and test builders passed in (a system's, or one equation's
@@ -128,7 +123,7 @@ def diagnose(
     (``velocity`` and restart ``window`` as in
     :class:`~cvxid.regression.builder.RegressionBuilder`; ``builders`` of the train and test
     data may be passed to reuse their columns)."""
-    system = as_system(model)
+    system = IdentifiedSystem.of(model)
     spec = system.spec
     found = candidates_of(system.specs, candidates if candidates is not None else default_candidates(system.specs))
     if not found:

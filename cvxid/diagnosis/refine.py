@@ -26,7 +26,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
 from cvxid.diagnosis.candidates import default_candidates, missing, with_candidate, with_input_delay
 from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
-from cvxid.diagnosis.ranking import Diagnosis, as_system, builders_for, diagnose
+from cvxid.diagnosis.ranking import Diagnosis, builders_for, diagnose
 from cvxid.diagnosis.residuals import residuals
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
@@ -91,8 +91,8 @@ class Refinement:
     (null when an earlier condition failed first)."""
 
     def __post_init__(self):
-        self.system = as_system(self.system)
-        self.start = None if self.start is None else as_system(self.start)
+        self.system = IdentifiedSystem.of(self.system)
+        self.start = None if self.start is None else IdentifiedSystem.of(self.start)
 
     @property
     def model(self) -> IdentifiedModel:
@@ -198,7 +198,7 @@ def refine(
     ``builders`` of the train and test data may be passed to reuse their columns;
     ``selection`` selects the library anew beside each effect (when there is one to select
     from)."""
-    system = start = as_system(model)
+    system = start = IdentifiedSystem.of(model)
     train_rows, test_rows = builders_for(system, train, test, velocity, window, builders)
     steps, diagnoses, comparisons, stopped = [], [], [], None
     candidates = list(candidates) if candidates is not None else None

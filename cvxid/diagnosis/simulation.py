@@ -49,7 +49,6 @@ from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates, missing, \
     with_candidate, with_input_delay
 from cvxid.diagnosis.compare import compare_system
-from cvxid.diagnosis.ranking import as_system
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, linearisation, output_error, polish, residual
@@ -122,7 +121,7 @@ def score_candidates(fitted: IdentifiedModel | IdentifiedSystem, train: Experime
     whose sign is constrained (a nonnegative effect, an input delay) scores 0 when its
     Gauss–Newton step from zero has the forbidden sign: the constrained fit stays at zero (a
     one-sided score test)."""
-    system = as_system(fitted)
+    system = IdentifiedSystem.of(fitted)
     return _scores(system, candidates_of(system.specs, [c for c in candidates if c != "delay"]), train, initial)
 
 

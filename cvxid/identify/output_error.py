@@ -182,10 +182,6 @@ class PolishResult:
         return False
 
 
-def _system(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
-    return fitted if isinstance(fitted, IdentifiedSystem) else IdentifiedSystem.of(fitted)
-
-
 def _experiments(experiments: Experiment | Sequence[Experiment], shortest: float = 0.0) -> list[Experiment]:
     """The records as gap-free stretches (a simulation cannot cross a gap), each with its
     own initial state; with gaps, stretches shorter than ``shortest`` seconds are left out."""
@@ -212,7 +208,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     estimated delay only.  ``initial``: each experiment's starting states (see
     :func:`output_error`)."""
     start = time.perf_counter()
-    system = _system(fitted)
+    system = IdentifiedSystem.of(fitted)
     experiments = _experiments(experiments, _shortest(system))
     points = _delay_profile(system, experiments, initial, coarse_step, grid) if grid else {}
     if points:
@@ -316,7 +312,7 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
 def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float:
     """Root-mean-square free-run simulation error of every coordinate on the experiments
     (from the states estimated at their starts; inf if a simulation diverges)."""
-    system = _system(fitted)
+    system = IdentifiedSystem.of(fitted)
     errors = []
     for e in _experiments(experiments):
         try:
@@ -350,7 +346,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     standard errors include the spread from the measured inputs' noise
     (:func:`input_noise_covariance`)."""
     start = time.perf_counter()
-    system = _system(fitted)
+    system = IdentifiedSystem.of(fitted)
     problem = _Problem(system, _experiments(experiments, _shortest(system)), step, initial, fixed_tau)
     cache: dict[bytes, np.ndarray] = {}
 
@@ -469,7 +465,7 @@ def delay_standard_error(fitted: IdentifiedModel | IdentifiedSystem, experiments
     output-error estimate of :math:`\tau` on this record (a local linearisation, with the
     output's noise level estimated from the residual; the Cramér–Rao bound when the noise
     is white and on the output alone): ``cvxid bench --heldout`` compares each error with it."""
-    step = _experiments(experiments, _shortest(_system(fitted)))[0].dt
+    step = _experiments(experiments, _shortest(IdentifiedSystem.of(fitted)))[0].dt
     fit = output_error(with_tau(fitted, tau), experiments, initial, step=step, max_iterations=100, fixed_tau=tau)
     problem = _problem_at(fit.system, experiments, fit.initial, None)
     if "tau" not in problem.names:
@@ -561,7 +557,7 @@ def residual(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=No
 
 
 def _problem_at(fitted, experiments, initial, step) -> "_Problem":
-    system = _system(fitted)
+    system = IdentifiedSystem.of(fitted)
     experiments = _experiments(experiments, _shortest(system))
     return _Problem(system, experiments, step or experiments[0].dt, initial)
 
