@@ -33,7 +33,7 @@ from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
 from cvxid.identify.selection import Selection
-from cvxid.identify.system import fit_support, identified
+from cvxid.identify.system import identify_system
 from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
@@ -164,11 +164,7 @@ def refit_system(system: SystemSpec, rows: SystemBuilder, support: Sequence[str]
                            ties=system.ties).estimate if system.exact else tau
         late = profile_input_delay(rows, system.equations, at, keep, system.nonnegative, ties=system.ties)
         system = SystemSpec(with_input_tau(system.equations, late.estimate), system.ties)
-    fit = fit_support(system, rows, keep, tau=None if system.exact else tau)
-    info = {"method": "equation_error", "train_mse": fit.fit.train_mse}
-    if fit.profile is not None:
-        info["tau_interval"] = list(fit.profile.interval)
-    return identified(system, fit.coefficients, fit.tau, lam, fit.profile, info)
+    return identify_system(system, rows, keep, lam=lam, tau=None if system.exact else tau)
 
 
 def refit(spec: ModelSpec, train: Experiment, support: Sequence[str], tau: float | None,

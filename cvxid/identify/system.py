@@ -68,10 +68,10 @@ def identified(system: SystemSpec, coefficients: dict[str, float], tau: float | 
 
 
 def identify_system(system: SystemSpec, rows: SystemBuilder, keep=None, solver: str = "CLARABEL",
-                    lam: float = 0.0) -> IdentifiedSystem:
+                    lam: float = 0.0, tau: float | None = None) -> IdentifiedSystem:
     """:func:`fit_support` as an :class:`~cvxid.identified.IdentifiedSystem` (its info:
     the training equation error and the delay's profile interval)."""
-    est = fit_support(system, rows, keep, solver=solver)
+    est = fit_support(system, rows, keep, tau=tau, solver=solver)
     info = {"method": "equation_error", "train_mse": est.fit.train_mse}
     if est.profile is not None:
         info["tau_interval"] = list(est.profile.interval)
