@@ -18,6 +18,26 @@ from scipy.stats import chi2
 
 SEGMENT = 4096
 """Samples per Welch segment of the spectra below."""
+CHUNK_SEGMENTS = 256
+"""Welch segments averaged a chunk of the record at a time (scipy holds every segment's
+spectrum at once: 10^7 samples took about 0.3 GB)."""
+
+
+def _welch(y: np.ndarray, fs: float, segment: int) -> tuple[np.ndarray, np.ndarray]:
+    """Welch's estimate (Hann segments half overlapped, each detrended), the segments'
+    periodograms averaged a chunk of :data:`CHUNK_SEGMENTS` at a time: the same segments
+    and mean as one call on the whole record, in the memory of a chunk."""
+    hop = segment // 2
+    if segment < 2 or y.size <= CHUNK_SEGMENTS * hop + segment:
+        return welch(y, fs=fs, nperseg=segment)
+    step = CHUNK_SEGMENTS * hop  # chunk j holds the segments starting in [j step, (j + 1) step)
+    total, count = 0.0, 0
+    for a in range(0, y.size - segment + 1, step):
+        piece = y[a:min(a + step + segment - hop, y.size)]
+        f, pxx = welch(piece, fs=fs, nperseg=segment)
+        segments = (piece.size - segment) // hop + 1
+        total, count = total + segments * pxx, count + segments
+    return f, total / count
 
 
 def _spectrum(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
@@ -26,7 +46,7 @@ def _spectrum(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
     white bin's median-to-mean ratio (:math:`\chi^2` with the bins' degrees of freedom:
     ln 2 for one segment)."""
     segment = min(y.size, SEGMENT)
-    f, pxx = welch(y - np.mean(y), fs=fs, nperseg=segment)
+    f, pxx = _welch(y - np.mean(y), fs, segment)
     averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
     return f, pxx, float(np.median(pxx[f.size // 2:]) / (chi2.median(averaged) / averaged))
 
@@ -43,8 +63,8 @@ def noise_level(y: np.ndarray) -> float:
     half taken as white, :func:`_spectrum`), from the floor (the Silverbox, 610 Hz: 4.8 mV by the
     third difference, 0.12 mV by the floor)."""
     y = np.asarray(y, float)
-    d3 = np.diff(y, 3)
-    differences = float(np.median(np.abs(d3)) / 0.6745 / np.sqrt(20.0))
+    d3 = np.abs(np.diff(y, 3))  # (overwritten by the median: two record-long arrays at most)
+    differences = float(np.median(d3, overwrite_input=True) / 0.6745 / np.sqrt(20.0))
     _, _, floor_density = _spectrum(y, 1.0)
     floor = float(np.sqrt(0.5 * floor_density))
     return floor if differences > SIGNAL_DOMINATES * floor else differences

@@ -47,6 +47,53 @@ def test_a_window_row_is_the_whole_record_operation_at_the_window_end():
             assert windows.column(z, d)[row] == pytest.approx(whole, rel=1e-7)
 
 
+def test_restart_windows_are_the_whole_record_operation_restarted_in_each_window(rng):
+    """Restart windows (``window = { restart = 0.5 }``): each window's rows are the
+    whole-record operation on that window alone, through the builder as through the
+    transform; a tail shorter than half a window is left out."""
+    from cvxid.regression.algebraic import RestartTransform
+
+    e = _oscillator(2.2, rng)
+    orders = AlgebraicOrders(2, 3)
+    restart = RestartTransform(e.time, orders, 500)
+    assert restart.bounds[-1] == (1500, 2000)  # the last 200 samples, under half a window, are left out
+    x = e.output("x")
+    column = restart.column(x, 2)
+    assert column.size == 2000
+    assert np.array_equal(column[500:1000], AlgebraicTransform(e.time[500:1000], orders).column(x[500:1000], 2))
+    spec = ModelSpec(Library([parse_term("x")]))
+    reg = RegressionBuilder(spec, e, window={"restart": 0.5}).at(None)
+    assert np.allclose(reg.P[:, 0], column, rtol=1e-12, atol=0)
+
+
+@pytest.mark.parametrize("length, stride", [(1001, 100), (1001, 3000)])  # overlapping (FFT), sparse (gathered)
+def test_a_long_record_is_transformed_a_chunk_at_a_time(rng, length, stride):
+    """Past CHUNK samples the rows are made chunk by chunk, each chunk reading only the
+    samples of its windows; they equal the whole record's correlation at every window."""
+    from scipy.signal import correlate
+
+    from cvxid.regression.algebraic import CHUNK
+
+    n = 3 * CHUNK + 12_345
+    t = np.arange(n) * 1e-3
+    z = rng.standard_normal(n)
+    windows = WindowedTransform(t, AlgebraicOrders(2, 3), length, stride)
+    spans = []
+
+    def read(index):
+        spans.append(z[index].size)
+        return z[index]
+
+    rows = windows.rows(read, 1)
+    assert len(windows.chunks) > 3 and max(spans) <= (CHUNK if stride < length else 4 * CHUNK)
+    assert np.allclose(rows, correlate(z, windows.kernel(1), mode="valid")[windows.starts], rtol=1e-10, atol=1e-12)
+    read_samples = sum(spans)
+    if stride < length:  # each chunk reads its windows' samples once, the overlap between chunks again
+        assert read_samples <= n + len(windows.chunks) * length
+    else:  # sparse windows: only their own samples, not the gaps between them
+        assert read_samples == windows.starts.size * length
+
+
 def test_a_long_record_is_at_least_as_accurate_as_a_short_one(rng):
     """200 s of a linear oscillator: the whole-record integrals lose the inertia (measured
     m = 0.93 here), windows chosen from the data recover every coefficient to 1e-4."""
@@ -158,7 +205,9 @@ def test_an_exact_delay_reads_the_record_and_drops_only_the_first_tau_max(rng):
     spec = ModelSpec(Library([parse_term("x")]), delay=delay)
     builder = RegressionBuilder(spec, e, window=1.0)
     (block,) = builder.blocks
-    assert block.rows[0] == 500 and block.rows[-1] == e.n - 1
+    windows = block.transform
+    assert block.first == 500 and windows.t[0] == e.time[500 + windows.length - 1]  # the first window at tau_max
+    assert e.n - 500 - windows.stride <= windows.starts[-1] + windows.length <= e.n - 500  # the last at the end
 
 
 @pytest.mark.slow
@@ -195,3 +244,34 @@ def test_a_builders_delayed_columns_are_kept_and_equal_fresh_ones(monkeypatch):
     assert np.array_equal(kept.at(0.15).P, fresh.P) and np.array_equal(first.P, fresh.P)
     wrapped = SystemBuilder.of(kept)
     assert wrapped.builders[spec.model.coordinate] is kept and np.array_equal(wrapped.at(0.15).P, fresh.P)
+
+
+def test_a_long_record_chooses_its_velocity_window_from_pieces_as_from_the_whole(rng):
+    """Past 2^19 samples the Savitzky–Golay window is read on pieces spread over the
+    record: on a stationary record it is the window the whole record gives."""
+    from scipy.signal import savgol_filter
+
+    from cvxid.metrics import noise_level
+    from cvxid.regression.velocity import PIECE, PIECES, _savgol_window
+
+    n = 2 * PIECES * PIECE
+    t = np.arange(n) * 1e-3
+    y = np.sin(0.9 * t) + 0.5 * np.sin(2.3 * t + 1) + 0.01 * rng.standard_normal(n)
+    sigma, length, whole = noise_level(y), 5, 5
+    while np.sqrt(np.mean((y - savgol_filter(y, length, 3, mode="interp")) ** 2)) <= 1.02 * sigma:
+        whole, length = length, int(length * 1.25) | 1
+    assert _savgol_window(y, 3) == whole > 5
+
+
+def test_a_long_records_spectrum_is_averaged_a_chunk_at_a_time_with_the_same_segments(rng):
+    """Welch's estimate in chunks of segments (scipy holds every segment's spectrum at
+    once) is scipy's on the whole record: the same segments, the same mean."""
+    from scipy.signal import welch
+
+    from cvxid.metrics import CHUNK_SEGMENTS, SEGMENT, _welch
+
+    n = 3 * CHUNK_SEGMENTS * SEGMENT // 2 + 777  # three chunks and a partial one
+    y = rng.standard_normal(n) + np.sin(0.01 * np.arange(n))
+    f, pxx = welch(y, fs=2.0, nperseg=SEGMENT)
+    f_chunked, pxx_chunked = _welch(y, 2.0, SEGMENT)
+    assert np.array_equal(f, f_chunked) and np.allclose(pxx_chunked, pxx, rtol=1e-12, atol=0)

@@ -1,5 +1,7 @@
 """Experiment validation and loaders."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.io import savemat
@@ -181,3 +183,25 @@ def test_csv_with_semicolons_decimal_commas_tabs_or_a_units_row_reads_the_same(t
         said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
         assert any("(s, m, N) is text in every column; it was read as units and skipped" in m for m in said) == \
             (name == "units.csv"), (name, said)
+
+
+def test_a_large_csv_is_read_in_chunks_to_the_same_columns(tmp_path, monkeypatch):
+    """Above LARGE_CSV bytes the file is parsed a chunk of rows at a time (the whole-file
+    parser's buffers are three times the numbers): the same columns, with a units row or
+    semicolons and decimal commas still understood."""
+    import cvxid.data.experiment as experiment
+
+    rows = [f"{i * 0.001:.3f},{np.sin(i / 50):.6f},{np.cos(i / 70):.6f}\n" for i in range(5000)]
+    (tmp_path / "units.csv").write_text("t,x,f\ns,m,N\n" + "".join(rows))
+    (tmp_path / "semicolon.csv").write_text("t;x;f\n" + "".join(r.replace(",", ";").replace(".", ",") for r in rows))
+    with pytest.warns(CvxidWarning, match="read as units and skipped"):
+        whole = experiment._csv_columns(tmp_path / "units.csv")
+    monkeypatch.setattr(experiment, "LARGE_CSV", 1000)
+    monkeypatch.setattr(experiment, "CSV_CHUNK", 777)
+    for name in ("units.csv", "semicolon.csv"):
+        with warnings.catch_warnings(record=True) as said:
+            warnings.simplefilter("always")
+            chunked = experiment._csv_columns(tmp_path / name)
+        assert any("read as units" in str(w.message) for w in said) == (name == "units.csv")
+        assert list(chunked) == ["t", "x", "f"] and all(np.array_equal(chunked[c], whole[c]) for c in whole)
+    assert whole["x"].size == 5000 and whole["x"][100] == pytest.approx(np.sin(2.0), abs=1e-6)

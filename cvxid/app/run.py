@@ -39,6 +39,7 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
+from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
@@ -156,8 +157,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
 
 def _warn_implausible(out: RunResult) -> None:
     """A model no physical system has, said aloud: a non-positive inertia, a selection that
-    dropped every candidate term at the top of the lambda grid, or one that kept every
-    candidate at its bottom."""
+    dropped every candidate term at the top of the lambda grid (unless listed or kept
+    linear terms explain the data: :data:`EXPLAINED`), or one that kept every candidate at
+    its bottom."""
     for label, model in out.system.models.items():
         mass = model.physical.get("m")
         if model.spec.inertia and mass is not None and not mass > 0:
@@ -179,12 +181,28 @@ def _warn_implausible(out: RunResult) -> None:
             "the bottom of its grid, so the validation error was least with no term dropped; the data do not tell "
             "which terms are needed (give a longer or richer record, a test record, or fewer candidates)",
             CvxidWarning, stacklevel=2)
-    if candidates.any() and not (chosen & candidates).any() and out.lam >= out.path.lambdas.max():
+    kept = any(c.group in (LISTED, LINEAR) for m in out.system.models.values() for c in m.spec.columns)
+    if candidates.any() and not (chosen & candidates).any() and out.lam >= out.path.lambdas.max() \
+            and not (kept and _explained(out) >= EXPLAINED):
         warnings.warn(
             f"the selection dropped every candidate term: lambda = {out.lam:.3g} is the top of its grid, so the "
             "validation error was least with no term at all; the model is likely missing an effect or the data "
             "do not excite it (run the diagnosis, [diagnose], or give the terms you expect)", CvxidWarning,
             stacklevel=2)
+
+
+EXPLAINED = 0.5
+"""A selection that keeps no candidate is an answer when the listed or kept linear terms
+explain at least this share of the training equation's target (a linear system), and a
+warning when they do not (an output the input does not drive)."""
+
+
+def _explained(out: RunResult) -> float:
+    r"""The share of the training regression's target that the final coefficients
+    explain, :math:`1 - \|Pc - p\|^2 / \|p\|^2`."""
+    reduced = out.problem.reduced
+    c = np.array([out.system.coefficients.get(n, 0.0) for n in out.problem.names])
+    return 1.0 - reduced.mse(c * reduced.column_scale / reduced.target_scale) / reduced.target_scale ** 2
 
 
 def _warn_undetermined(polish) -> None:

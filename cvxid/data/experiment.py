@@ -53,8 +53,7 @@ def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> n
             f"value(s), the first at sample {first}; repair them, or for missing samples (NaN) "
             "load with gaps = true so that the integrals restart after each gap"
         )
-    finite = arr[np.isfinite(arr)]
-    size = float(np.max(np.abs(finite))) if finite.size else 0.0
+    size = float(max(np.nanmax(arr), -np.nanmin(arr))) if not np.isnan(arr).all() else 0.0  # (no copy of arr)
     if size > MAGNITUDES[1] or 0 < size < MAGNITUDES[0]:
         raise CvxidError(
             f"experiment '{experiment}': signal '{name}' reaches {size:.3g} in magnitude, where the squares and "
@@ -123,7 +122,7 @@ class Experiment:
                 f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
             )
         dt = (t[-1] - t[0]) / (t.size - 1)
-        dev = np.max(np.abs(steps - dt)) / dt
+        dev = max(steps.max() - dt, dt - steps.min()) / dt
         if dev > JITTER_RTOL:
             k = int(np.argmax(np.abs(steps - dt)))
             raise CvxidError(
@@ -255,10 +254,17 @@ def _pick(available: Mapping[str, np.ndarray], wanted: str, what: str, source: P
     return available[wanted]
 
 
+LARGE_CSV = 64 << 20
+"""Bytes above which a CSV file is parsed a chunk of :data:`CSV_CHUNK` rows at a time: the
+whole-file parser's buffers peak at about 80 bytes a sample for three columns (10^7 rows:
+0.8 GB for 0.24 GB of numbers), a chunked read at the numbers and one column's copy."""
+CSV_CHUNK = 1 << 20
+
+
 def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     """The columns of a CSV file with a header row: separated by commas, or by semicolons
     (then a decimal comma is read too) or tabs; a row of units under the header (text in
-    every column) is skipped with a warning."""
+    every column) is skipped with a warning.  The format is read off the first rows."""
     import pandas as pd
 
     def read(**options):
@@ -268,18 +274,29 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
     options = {}
-    frame = read()
-    if frame.shape[1] == 1 and any(sep in str(frame.columns[0]) for sep in (";", "\t")):
-        options = {"sep": ";", "decimal": ","} if ";" in str(frame.columns[0]) else {"sep": "\t"}
-        frame = read(**options)
-    if len(frame) > 1 and not any(pd.api.types.is_numeric_dtype(frame[c]) for c in frame.columns):
-        first = [str(v) for v in frame.iloc[0]]
-        second = [str(v).replace(",", ".") if options.get("decimal") == "," else str(v) for v in frame.iloc[1]]
+    head = read(nrows=100)
+    if head.shape[1] == 1 and any(sep in str(head.columns[0]) for sep in (";", "\t")):
+        options = {"sep": ";", "decimal": ","} if ";" in str(head.columns[0]) else {"sep": "\t"}
+        head = read(nrows=100, **options)
+    if len(head) > 1 and not any(pd.api.types.is_numeric_dtype(head[c]) for c in head.columns):
+        first = [str(v) for v in head.iloc[0]]
+        second = [str(v).replace(",", ".") if options.get("decimal") == "," else str(v) for v in head.iloc[1]]
         if not any(_numeric(v) for v in first) and all(_numeric(v) for v in second):
             warnings.warn(f"{path}: the row under the header ({', '.join(first)}) is text in every column; it was "
                           "read as units and skipped", CvxidWarning, stacklevel=3)
-            frame = read(skiprows=[1], **options)
-    return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
+            options["skiprows"] = [1]
+    if path.stat().st_size <= LARGE_CSV:
+        frame = read(**options)
+        return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
+    pieces: dict[str, list[np.ndarray]] = {}
+    try:
+        with pd.read_csv(path, chunksize=CSV_CHUNK, **options) as chunks:
+            for chunk in chunks:
+                for c in chunk.columns:
+                    pieces.setdefault(str(c).strip(), []).append(chunk[c].to_numpy())
+    except Exception as exc:  # pandas raises many types for malformed files
+        raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
+    return {c: np.concatenate(pieces.pop(c)) for c in list(pieces)}
 
 
 def _numeric(text: str) -> bool:

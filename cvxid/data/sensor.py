@@ -99,7 +99,7 @@ def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
 
 
 def _clipped(name: str, y: np.ndarray) -> list[SensorFault]:
-    finite = y[np.isfinite(y)]
+    finite = y if not np.isnan(y).any() else y[np.isfinite(y)]
     faults = []
     extremes = (("maximum", finite.max()), ("minimum", finite.min()))
     for side, level in extremes[:1] if finite.max() == finite.min() else extremes:
@@ -126,7 +126,7 @@ def _frozen(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
     if not runs:
         return []
     lengths = np.array([b - a for a, b in runs])
-    typical = np.percentile(np.r_[lengths, np.ones(y.size - lengths.sum(), int)], 99)
+    typical = _percentile_with_ones(lengths, y.size - lengths.sum(), 99)
     mask = np.zeros(y.size, bool)
     longest = None
     for (a, b), length in zip(runs, lengths):
@@ -142,11 +142,25 @@ def _frozen(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
         f"(99 % of its other runs of one value last at most {typical:.0f} samples)")]
 
 
+def _percentile_with_ones(values: np.ndarray, ones: int, q: float) -> float:
+    """``np.percentile`` of ``values`` (each above 1) and ``ones`` more values of 1,
+    without the array of ones (a record's worth of samples)."""
+    ordered = np.sort(values)
+    count = ordered.size + ones
+    position = q / 100 * (count - 1)
+    below = int(np.floor(position))
+    at = lambda i: 1.0 if i < ones else float(ordered[min(i, count - 1) - ones])
+    return at(below) + (position - below) * (at(below + 1) - at(below))
+
+
 def _outliers(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
     size = np.zeros(y.size)
     for a, b in _runs(np.isfinite(y)):                   # gaps (NaN) split the record
-        size[a:b] = np.abs(y[a:b] - median_filter(y[a:b], size=5, mode="nearest"))
-    scale = max(1.4826 * np.median(size), np.percentile(size, 99) / 3)
+        piece = size[a:b]
+        np.subtract(y[a:b], median_filter(y[a:b], size=5, mode="nearest"), out=piece)
+        np.abs(piece, out=piece)
+    middle, high = np.percentile(size, [50, 99])
+    scale = max(1.4826 * middle, high / 3)
     if scale == 0:
         return []
     far = (size > OUTLIER_LEVELS * scale) & ~skip

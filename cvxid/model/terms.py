@@ -39,9 +39,15 @@ class Term:
         """The state symbols the term reads."""
         raise NotImplementedError
 
-    def regression_signal(self, states: States) -> tuple[np.ndarray, int]:
-        """The signal and derivative order that the algebraic operation transforms."""
-        return np.broadcast_to(self.evaluate(states), states[next(iter(states))].shape), 0
+    def regression_signal(self, states: States) -> np.ndarray:
+        """The signal that the algebraic operation transforms (as the derivative of order
+        :attr:`regression_order`)."""
+        return np.broadcast_to(self.evaluate(states), states[next(iter(states))].shape)
+
+    @property
+    def regression_order(self) -> int:
+        """The derivative order of :meth:`regression_signal` in the term (0: the term itself)."""
+        return 0
 
     @property
     def needs_velocity(self) -> bool:
@@ -100,12 +106,17 @@ class Monomial(Term):
     def needs_velocity(self) -> bool:
         return self._antiderivative is None and super().needs_velocity
 
-    def regression_signal(self, states: States) -> tuple[np.ndarray, int]:
+    def regression_signal(self, states: States) -> np.ndarray:
         anti = self._antiderivative
         if anti is None:
-            return self.evaluate(states), 0
+            return self.evaluate(states)
         coord, p = anti
-        return states[coord] ** (p + 1) / (p + 1), 1
+        return states[coord] ** (p + 1) / (p + 1)
+
+    @property
+    def regression_order(self) -> int:
+        """1 for :math:`x^p x'` (the derivative of :math:`x^{p+1}/(p+1)`), else 0."""
+        return 0 if self._antiderivative is None else 1
 
     @property
     def latex(self) -> str:
@@ -155,8 +166,12 @@ class Derivative(Term):
             return states[velocity_symbol(self.coordinate)]
         raise CvxidError(f"term {self.name} cannot be evaluated from positions and velocities")
 
-    def regression_signal(self, states: States) -> tuple[np.ndarray, int]:
-        return states[self.coordinate], self.order
+    def regression_signal(self, states: States) -> np.ndarray:
+        return states[self.coordinate]
+
+    @property
+    def regression_order(self) -> int:
+        return self.order
 
     @property
     def latex(self) -> str:
@@ -193,8 +208,12 @@ class DelayedSignal(Term):
     def evaluate(self, states: States) -> np.ndarray:
         raise CvxidError("the delayed signal is simulated by the delay-differential integrator")
 
-    def regression_signal(self, states: States) -> tuple[np.ndarray, int]:
-        return states[self.symbol], self.derivative
+    def regression_signal(self, states: States) -> np.ndarray:
+        return states[self.symbol]
+
+    @property
+    def regression_order(self) -> int:
+        return self.derivative
 
 
 class InputRate(Term):

@@ -46,12 +46,27 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import comb, factorial
+from typing import Callable
 
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy.integrate import cumulative_simpson
 from scipy.signal import correlate
 
 from cvxid.errors import CvxidError
+
+Reader = Callable[[slice | np.ndarray], np.ndarray]
+"""A signal read in pieces: ``read(index)`` is its samples at ``index`` (a slice, or an
+array of sample numbers), so a long record's term is evaluated a chunk at a time, never
+whole."""
+
+CHUNK = 1 << 18
+"""Samples a windowed transform reads at once (2 MB a signal): with the windows' own rows,
+the memory a column needs does not grow with the record."""
+OVERLAP = 4
+"""Windows that read their samples more than this many times over (rows × window length
+over the samples they span) are correlated by FFT over their chunk; sparser ones are
+gathered and multiplied directly."""
 
 
 @dataclass(frozen=True)
@@ -129,6 +144,11 @@ class AlgebraicTransform:
             stack.append(cumulative_simpson(stack[-1], dx=self.dt, initial=0.0))
         return stack[count]
 
+    def rows(self, read: Reader, d: int = 0) -> np.ndarray:
+        """:meth:`column` of the signal that ``read`` gives (read whole: every row of the
+        whole-record operation reads the record from its start)."""
+        return self.column(read(slice(0, self.t.size)), d)
+
     def column(self, signal: np.ndarray, d: int = 0) -> np.ndarray:
         """The regression column of ``d``-th derivative of ``signal`` (``d = 0``: static)."""
         signal = np.asarray(signal, dtype=float)
@@ -141,7 +161,12 @@ class AlgebraicTransform:
 class WindowedTransform:
     """Apply the algebraic operation on sliding windows of ``length`` samples (odd), one
     row every ``stride`` samples: row ``i`` is the operation on samples
-    ``[i * stride, i * stride + length)`` evaluated at the window's end."""
+    ``[i * stride, i * stride + length)`` evaluated at the window's end.
+
+    The rows are made a chunk of windows at a time (:meth:`rows`): a chunk reads at most
+    :data:`CHUNK` samples (or two windows), and only the samples its windows cover, so a
+    long record's column costs the memory of a chunk and the time of the samples read, not
+    of the record."""
 
     def __init__(self, time: np.ndarray, orders: AlgebraicOrders, length: int, stride: int):
         t = np.asarray(time, dtype=float)
@@ -158,6 +183,19 @@ class WindowedTransform:
         simpson[1:-1:2], simpson[2:-1:2] = 4.0, 2.0
         self._s, self._quadrature = s, simpson * self.dt / 3.0
         self._kernels: dict[int, np.ndarray] = {}
+        self.chunks = self._chunked(self.starts, self.length)
+
+    @staticmethod
+    def _chunked(starts: np.ndarray, length: int) -> list[tuple[int, int]]:
+        """Consecutive runs ``[lo, hi)`` of rows whose windows span at most
+        ``max(CHUNK, 2 length)`` samples."""
+        span = max(CHUNK, 2 * length)
+        chunks, lo = [], 0
+        while lo < starts.size:
+            hi = int(np.searchsorted(starts, starts[lo] + span - length, side="right"))
+            chunks.append((lo, max(hi, lo + 1)))
+            lo = chunks[-1][1]
+        return chunks
 
     def kernel(self, d: int) -> np.ndarray:
         r"""The quadrature-weighted kernel :math:`K_d(s_j) q_j` of a term of order ``d``."""
@@ -172,10 +210,28 @@ class WindowedTransform:
             self._kernels[d] = k
         return self._kernels[d]
 
+    def rows(self, read: Reader, d: int = 0) -> np.ndarray:
+        r"""The regression column of the ``d``-th derivative of the signal that ``read``
+        gives, one value per window, :math:`\sum_j K_d(s_j)\,q_j\, z(a + s_j)`, a chunk
+        of windows at a time: overlapping windows correlated by FFT over the samples they
+        span, sparse ones (a long record's) gathered, their samples alone read."""
+        kernel, length = self.kernel(d), self.length
+        out = np.empty(self.starts.size)
+        for lo, hi in self.chunks:
+            starts = self.starts[lo:hi]
+            a, b = int(starts[0]), int(starts[-1]) + length
+            if (hi - lo) * length <= OVERLAP * (b - a):
+                samples = (starts[:, None] + np.arange(length)).ravel()
+                out[lo:hi] = np.asarray(read(samples), dtype=float).reshape(hi - lo, length) @ kernel
+            else:
+                out[lo:hi] = correlate(np.asarray(read(slice(a, b)), dtype=float), kernel, mode="valid")[starts - a]
+        return out
+
     def column(self, signal: np.ndarray, d: int = 0) -> np.ndarray:
-        """The regression column of the ``d``-th derivative of ``signal``, one value per window."""
+        """The regression column of the ``d``-th derivative of ``signal`` (the whole
+        record's samples), one value per window."""
         signal = np.asarray(signal, dtype=float)
-        return correlate(signal, self.kernel(d), mode="valid")[self.starts]
+        return self.rows(signal.__getitem__, d)
 
 
 class RestartTransform:
@@ -188,6 +244,11 @@ class RestartTransform:
         self.bounds = [(a, min(a + length, n)) for a in range(0, max(n - length // 2, 1), length)]
         self.pieces = [AlgebraicTransform(time[a:b], orders) for a, b in self.bounds]
 
+    def rows(self, read: Reader, d: int = 0) -> np.ndarray:
+        """The regression column of the ``d``-th derivative of the signal that ``read``
+        gives, window after window (each window read on its own)."""
+        return np.concatenate([p.column(read(slice(a, b)), d) for p, (a, b) in zip(self.pieces, self.bounds)])
+
     def column(self, signal: np.ndarray, d: int = 0) -> np.ndarray:
         """The regression column of the ``d``-th derivative of ``signal``, window after window."""
-        return np.concatenate([p.column(signal[a:b], d) for p, (a, b) in zip(self.pieces, self.bounds)])
+        return self.rows(np.asarray(signal, dtype=float).__getitem__, d)

@@ -62,11 +62,12 @@ def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | Non
 
 
 class _Block:
-    """One gap-free segment: its transform, the samples it reads, cached columns and
-    targets (by input delay)."""
+    """One gap-free segment: its transform, the first sample it reads (the samples before
+    are the delayed signal's measured history), cached columns and targets (by input
+    delay)."""
 
-    def __init__(self, transform, rows: np.ndarray, segment: int):
-        self.transform, self.rows, self.segment = transform, rows, segment
+    def __init__(self, transform, first: int, segment: int):
+        self.transform, self.first, self.segment = transform, first, segment
         self.columns: dict[str, np.ndarray] = {}
         self.targets: dict[float, np.ndarray] = {}
         self.delayed: dict[tuple[float, int], np.ndarray] = {}
@@ -136,8 +137,8 @@ class RegressionBuilder:
                 )
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
-            keep = np.flatnonzero(e.time >= e.time[0] + self.start - 1e-9 * e.dt)  # the delayed signal is measured
-            self.blocks.append(_Block(_transform(e.time[keep], orders, self.window), keep, i))
+            first = int(np.searchsorted(e.time, e.time[0] + self.start - 1e-9 * e.dt))  # the delayed signal is measured
+            self.blocks.append(_Block(_transform(e.time[first:], orders, self.window), first, i))
 
     @property
     def delay(self):
@@ -172,9 +173,9 @@ class RegressionBuilder:
             if len(block.targets) >= TARGETS:  # a profile over the input delay asks for many, once each
                 block.targets.clear()
             e = self.experiments[block.segment]
-            p = block.transform.column(model.received_input(e)[block.rows])
+            p = block.transform.column(model.received_input(e)[block.first:])
             if not model.inertia:
-                p = p - model.mass * block.transform.column(e.output(model.coordinate)[block.rows], 2)
+                p = p - model.mass * block.transform.column(e.output(model.coordinate)[block.first:], 2)
             block.targets[tau_u] = p
         return block.targets[tau_u]
 
@@ -183,17 +184,23 @@ class RegressionBuilder:
             symbols = list(self.model.coordinates)  # positions always; velocities where the column needs them
             if term.needs_velocity:
                 symbols += sorted(s for s in term.symbols if s.endswith("'"))
-            states = {s: self._state(block.segment, s)[block.rows] for s in symbols}
-            with np.errstate(all="ignore"):
-                signal, order = term.regression_signal(states)
-            if not np.all(np.isfinite(signal)):
-                bad = int(np.argmax(~np.isfinite(np.broadcast_to(signal, block.rows.shape))))
-                raise CvxidError(
-                    f"term '{term.name}' is not finite on these data (first at sample {int(block.rows[bad])} of "
-                    f"'{self.experiments[block.segment].name}': a fractional power or square root of a negative "
-                    "value, a division by zero, an overflow); write it so that it is defined everywhere the state "
-                    "goes, e.g. abs(x)^1.5 for x^1.5")
-            block.columns[term.name] = block.transform.column(signal, order)
+            states = {s: self._state(block.segment, s)[block.first:] for s in symbols}
+
+            def read(index):  # the term on the block's samples at index only
+                with np.errstate(all="ignore"):
+                    pieces = {s: v[index] for s, v in states.items()}
+                    signal = np.broadcast_to(term.regression_signal(pieces), next(iter(pieces.values())).shape)
+                if not np.all(np.isfinite(signal)):
+                    at = int(np.argmax(~np.isfinite(signal)))
+                    sample = block.first + (index.start + at if isinstance(index, slice) else int(index[at]))
+                    raise CvxidError(
+                        f"term '{term.name}' is not finite on these data (first at sample {sample} of "
+                        f"'{self.experiments[block.segment].name}': a fractional power or square root of a negative "
+                        "value, a division by zero, an overflow); write it so that it is defined everywhere the state "
+                        "goes, e.g. abs(x)^1.5 for x^1.5")
+                return signal
+
+            block.columns[term.name] = block.transform.rows(read, term.regression_order)
         return block.columns[term.name]
 
     def _delayed(self, block: _Block, tau: float, derivative: int) -> np.ndarray:
@@ -202,8 +209,8 @@ class RegressionBuilder:
         key = (float(tau), int(derivative))
         column = block.delayed.get(key)
         if column is None:
-            t = self.experiments[block.segment].time[block.rows]
-            column = block.transform.column(self._splines[block.segment](t - tau), derivative)
+            t, spline = self.experiments[block.segment].time[block.first:], self._splines[block.segment]
+            column = block.transform.rows(lambda index: spline(t[index] - tau), derivative)
             if len(block.delayed) * column.size >= DELAYED_FLOATS:
                 block.delayed.clear()
             block.delayed[key] = column
@@ -211,7 +218,7 @@ class RegressionBuilder:
 
     def _input_rate(self, block: _Block, model: ModelSpec) -> np.ndarray:
         """The column of the received input's rate (a diagnosis candidate: a missing input delay)."""
-        return block.transform.column(model.received_input(self.experiments[block.segment])[block.rows], 1)
+        return block.transform.column(model.received_input(self.experiments[block.segment])[block.first:], 1)
 
     def _check(self, model: ModelSpec):
         same = (model.coordinates, model.input, model.inertia, model.mass, model.delay, model.orders,

@@ -1,14 +1,15 @@
 r"""The memory a regression build needs, checked against the machine before any work.
 
 Measured with ``cvxid bench --long`` (peak resident memory of ``cvxid run`` on a linear
-oscillator, 1 kHz): on windows the transforms keep about 120 bytes per sample whatever
-the library (1e7 samples: 1.4 GB at order 3 and at order 6); the paper's whole-record
+oscillator, 1 kHz): on windows, whose rows are made a chunk at a time, a run keeps the
+record, its velocity and a filter's output, about 50 bytes per sample whatever the library
+(1e7 samples: 0.69 GB, of which 0.23 GB is Python and its packages); the paper's whole-record
 integrals keep about 90 bytes per sample and column (1e6 samples: 1.9 GB at order 3,
 4.6 GB at order 6).  A build estimated above the memory available now is refused unless
 the spec says ``[fit] allow_large = true``.
 
 .. math:: \text{bytes} \approx B_0 + n_{\rm samples}\,
-   \begin{cases} 150 & \text{windows} \\ 100\,(k + 1) & \text{whole record} \end{cases}
+   \begin{cases} 60 & \text{windows} \\ 100\,(k + 1) & \text{whole record} \end{cases}
 """
 
 from __future__ import annotations
@@ -19,8 +20,8 @@ from cvxid.errors import CvxidError
 
 BASE_BYTES = 0.3e9
 """The interpreter, numpy, scipy and cvxpy."""
-WINDOWED_BYTES = 150
-"""Bytes per sample on windows (measured 117-130)."""
+WINDOWED_BYTES = 60
+"""Bytes per sample on windows (measured 46-50 from 10^6 to 10^7 samples, 2026-11-26)."""
 WHOLE_RECORD_BYTES = 100
 """Bytes per sample and column with whole-record integrals (measured 87-96)."""
 
@@ -54,7 +55,7 @@ def check_memory(samples: int, columns: int, windowed: bool, allow_large: bool =
         return
     how = "windows" if windowed else f"whole-record integrals of {columns} columns"
     fix = ("decimate or split the record" if windowed else
-           'use windows (window = "auto", about 150 bytes per sample whatever the library), or fewer columns')
+           'use windows (window = "auto", about 60 bytes per sample whatever the library), or fewer columns')
     raise CvxidError(
         f"{samples:,} samples on {how} need about {need / 1e9:.1f} GB of memory and {have / 1e9:.1f} GB is "
         f"available: {fix}; [fit] allow_large = true tries anyway")
