@@ -117,7 +117,8 @@ def responses_figure(labels, comparisons):
     output and the model's free run over the same record, the fit in the panel's title, so
     that where each effect mattered shows in the response itself.  These are the
     diagnosis's own models and comparisons (from the record's first state, before any
-    output-error polish), which the figure's title says."""
+    output-error polish), and a last row ``final …`` may show the run's final model after
+    it; the figure's title says so."""
     coords = list(comparisons[0])
     fig, axes = plt.subplots(len(comparisons), len(coords), figsize=(8 * len(coords) ** 0.5, 1.9 * len(comparisons)
                                                                       + 0.6), sharex=True, squeeze=False)
@@ -136,8 +137,9 @@ def responses_figure(labels, comparisons):
     axes[0, 0].legend(fontsize=8, loc="lower left", ncol=2)
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
+    polished = " (the last: the run's final model, after it)" if labels[-1].startswith("final") else ""
     fig.suptitle("the diagnosis's models, each added effect in turn (free run from the record's first state, "
-                 "before the output-error polish)", fontsize=9)
+                 f"before the output-error polish){polished}", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     return fig
 

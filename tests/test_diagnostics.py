@@ -10,7 +10,7 @@ from matplotlib import pyplot as plt
 from cvxid import CvxidError, CvxidWarning
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.candidates import with_effect
-from cvxid.diagnosis.compare import compare, k_step_prediction, k_step_samples
+from cvxid.diagnosis.compare import compare, compare_system, k_step_prediction, k_step_samples
 from cvxid.diagnosis.ranking import Diagnosis, diagnose
 from cvxid.diagnosis.refine import Refinement, refine, refit
 from cvxid.diagnosis.residuals import residuals
@@ -78,6 +78,16 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     assert [line.get_label() for line in history.get_lines()] == ["test equation-error MSE",
                                                                   "test free-run error (1 - fit)"]
     assert history.get_lines()[1].get_ydata()[1] == pytest.approx(1 - step.fit_after / 100)
+    # with the run's final model (here the loop's last, compared from an estimated start) a last row and point,
+    # its free run the one from the record's own start like the loop's
+    final = compare_system(result.system, test)
+    assert final["x"].record_free_run is not None
+    responses = result.plot_responses(final)
+    assert [ax.get_title().split(":")[0] for ax in responses.axes] == ["start", f"+ {hidden}", "final (polished)"]
+    assert "the last: the run's final model" in responses.get_suptitle()
+    history = result.plot(final, 1e-9).axes[0]
+    assert history.get_lines()[1].get_ydata()[2] == pytest.approx(1 - final["x"].record_fit_percent / 100)
+    assert history.get_lines()[0].get_ydata()[2] == 1e-9
     assert "where the starting model fails" in result.plot_residuals(test).get_suptitle()
     plt.close("all")
 

@@ -194,11 +194,14 @@ def test_the_confusion_table_counts_right_and_wrong_additions():
         "added": ["coulomb", "", "offset", ""], "added by simulation": ["", "coulomb,offset", "", ""],
         "first added": ["coulomb", "offset", "offset", None],
         "equation error fall": [8.0, np.nan, np.nan, np.nan], "free-run error fall": [4.0, 2.0, np.nan, np.nan],
+        "start to final fall": [12.0, np.nan, np.nan, np.nan],
     })
     table = confusion(frame)
     assert table.loc["coulomb", "added first %"] == 50 and table.loc["none", "added first %"] == 0
     assert table.loc["coulomb", "equation error fall (median x)"] == 8.0
     assert table.loc["coulomb", "free-run error fall (median x)"] == 3.0
+    assert table.loc["coulomb", "free-run error fall (least x)"] == 2.0
+    assert table.loc["coulomb", "start to final fall (median x)"] == table.loc["coulomb", "start to final fall (least x)"] == 12
     assert table.loc["coulomb", "ranked first %"] == 50 and table.loc["coulomb", "added %"] == 100
     assert table.loc["coulomb", "added by simulation %"] == 50 and table.loc["coulomb", "wrong addition %"] == 50
     assert table.loc["none", "wrong addition %"] == 50 and table.loc["none", "most often first"] == "offset"
@@ -214,14 +217,19 @@ def test_the_error_falls_are_read_from_the_step_that_added_the_hidden_effect():
     equation = {"added": "offset", "test_mse_before": 4.0, "test_mse_after": 1.0, "fit_before": 90.0,
                 "fit_after": 98.0}
     simulation = {"added": "coulomb", "kept": True, "test_rms_before": 0.3, "test_rms_after": 0.1}
-    result = {"refinement": [equation], "simulation_diagnosis": {"steps": [simulation]}}
+    result = {"refinement": [equation], "simulation_diagnosis": {"steps": [simulation]},
+              "test_fit_percent_record_start": 99.5}
     assert _falls(result, "offset") == {"first added": "offset", "equation error fall": 4.0,
-                                        "free-run error fall": pytest.approx(5.0)}
+                                        "free-run error fall": pytest.approx(5.0),
+                                        "start to final fall": pytest.approx(20.0)}  # 10 % -> 0.5 % of the record
     late = _falls(result, "coulomb")
     assert late["first added"] == "offset" and np.isnan(late["equation error fall"])
     assert late["free-run error fall"] == pytest.approx(3.0)
-    diverged = _falls({"refinement": [{**equation, "fit_before": None}]}, "offset")
-    assert diverged["free-run error fall"] == np.inf and diverged["equation error fall"] == 4.0
+    assert np.isnan(late["start to final fall"])  # (added by the simulation stage)
+    diverged = _falls({"refinement": [{**equation, "fit_before": None}], "test_fit_percent_record_start": 99.0},
+                      "offset")
+    assert diverged["free-run error fall"] == diverged["start to final fall"] == np.inf
+    assert diverged["equation error fall"] == 4.0
     missed = _falls({"refinement": [], "simulation_diagnosis": {"steps": [{**simulation, "kept": False}]}}, "coulomb")
     assert missed["first added"] is None and np.isnan(missed["free-run error fall"])
 

@@ -106,14 +106,15 @@ def write_report(result, out) -> tuple[Path, str | None]:
     data = result.to_dict()
     system = result.system
     added = result.refinement is not None and bool(result.refinement.steps)
+    final = result.comparisons if result.polish is not None else None  # (else the diagnosis's last model is final)
     plotters = {
         "path": (lambda: path_figure(result.path, result.lam))
         if result.path is not None and (result.path.problem.penalties > 0).any() else None,  # (flat without)
         "delay_profile": (lambda: delay_profile_figure(*system.profile, system.tau, system.info.get("tau_interval")))
         if system.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
-        "refinement": result.refinement.plot if result.refinement is not None and result.refinement.steps else None,
-        "responses": result.refinement.plot_responses if added else None,
+        "refinement": (lambda: result.refinement.plot(final, result.test_mse)) if added else None,
+        "responses": (lambda: result.refinement.plot_responses(final)) if added else None,
         "residuals": (lambda: result.refinement.plot_residuals(result.test)) if added else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }

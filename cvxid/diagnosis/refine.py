@@ -110,28 +110,42 @@ class Refinement:
         """``start``, then ``+ effect`` for each added effect."""
         return ["start"] + [f"+ {s.added}" for s in self.steps]
 
-    def plot(self):
+    def plot(self, final: dict | None = None, final_mse: float | None = None):
         """The error history: the test record's equation-error MSE and free-run error
-        (:math:`1 - \\text{fit}/100`) before and after each added effect."""
+        (:math:`1 - \text{fit}/100`) before and after each added effect, and with
+        ``final`` (coordinate → :class:`~cvxid.diagnosis.compare.Comparison` of the run's
+        final model, after the output-error polish) and its equation-error MSE a last
+        point for it."""
         from cvxid.plots import refinement_figure
 
         steps = self.steps
         if not steps:
             raise CvxidError("nothing to plot: the refinement added no effect")
+        labels = self.labels
         series = {"test equation-error MSE": [steps[0].test_mse_before] + [s.test_mse_after for s in steps]}
         fits = [steps[0].fit_before] + [s.fit_after for s in steps]
+        last = _from_record_start(final)
+        if last is not None:
+            labels = labels + [FINAL]
+            series["test equation-error MSE"].append(np.nan if final_mse is None else final_mse)
+            fits.append(mean_fit(last))
         if all(f is not None for f in fits):
             series["test free-run error (1 - fit)"] = [1.0 - f / 100.0 for f in fits]
-        return refinement_figure(self.labels, series)
+        return refinement_figure(labels, series)
 
-    def plot_responses(self):
+    def plot_responses(self, final: dict | None = None):
         """The test record's free run before and after each added effect, over the
-        measurement, one panel each (a column per coordinate; the fit in each title)."""
+        measurement, one panel each (a column per coordinate; the fit in each title), and
+        with ``final`` (coordinate → comparison of the run's final model) a last row for
+        it, from the record's own start like the others."""
         from cvxid.plots import responses_figure
 
         if not self.comparisons:
             raise CvxidError("nothing to plot: the refinement added no effect")
-        return responses_figure(self.labels, self.comparisons)
+        last = _from_record_start(final)
+        if last is None:
+            return responses_figure(self.labels, self.comparisons)
+        return responses_figure(self.labels + [FINAL], self.comparisons + [last])
 
     def plot_residuals(self, experiment: Experiment, bins: int = 21):
         """Where the starting model fails: each equation's error on ``experiment`` in time and
@@ -151,6 +165,18 @@ class Refinement:
         if self.stopped is not None:
             lines.append(stop_reason(self.stopped))
         return "\n".join(lines)
+
+
+FINAL = "final (polished)"
+"""The label of the run's final model in the refinement's figures."""
+
+
+def _from_record_start(final: dict | None) -> dict | None:
+    """The final model's comparisons with their free run from the record's own start (the
+    diagnosis's models start there), or None when there is no final model or no such run."""
+    if not final or any(c.record_free_run is None for c in final.values()):
+        return None
+    return {k: replace(c, free_run=c.record_free_run, fit_percent=c.record_fit_percent) for k, c in final.items()}
 
 
 def refit_system(system: SystemSpec, rows: SystemBuilder, support: Sequence[str], tau: float | None,

@@ -368,7 +368,7 @@ def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: b
 LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "tau error %", "low", "high", "covers"]
 TRAILING = ["worst other %", "others covered %", "tau limit %", "tau error / limit", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
-             "free-run error fall"]
+             "free-run error fall", "start to final fall"]
 SELECTION = ["support recovered", "missed", "spurious"]
 
 
@@ -445,7 +445,22 @@ def _falls(result: dict, effect: str) -> dict:
     elif step is not None:
         free_run = step["test_rms_before"] / step["test_rms_after"]
     return {"first added": steps[0]["added"] if steps else None, "equation error fall": equation,
-            "free-run error fall": free_run}
+            "free-run error fall": free_run, "start to final fall": _start_to_final(result, steps, step)}
+
+
+def _start_to_final(result: dict, steps: list[dict], step: dict | None) -> float:
+    r"""The test free run's error of the model the run started from over the run's final
+    model's (after the output-error polish, when the spec polishes), both from the record's
+    own start: :math:`(100 - \text{fit}_0) / (100 - \text{fit})`; what a user sees the
+    diagnosis do.  The fall at the step compares equation-error models, whose free run a
+    Coulomb friction can make worse until the polish (report seed 1005: 87 → 79 % at the
+    step, 98.9 % at the end).  NaN when no equation-stage step added the effect, infinite
+    when the starting model diverged."""
+    final = result.get("test_fit_percent_record_start")
+    if step is None or step["stage"] != "equation" or not isinstance(final, (int, float)):
+        return np.nan
+    start = steps[0]["fit_before"]
+    return np.inf if start is None else (100.0 - start) / max(100.0 - final, 1e-12)
 
 
 def selection_library() -> list[str]:
@@ -570,7 +585,9 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
     """Diagnosis mode, per hidden effect: how often the diagnosis ranked it first (by the
     test equation error; collinear rivals by the test free run), how often it was added (by either stage, and by the simulation stage alone), how
     often it was the first effect added, the median factors by which its addition lowered
-    the test record's equation error (MSE) and free-run error (RMS), how often another
+    the test record's equation error (MSE) and free-run error (RMS) at its step, the median
+    and least factors of the free-run error from the starting model to the final one
+    (:func:`_start_to_final`), how often another
     effect was added (a wrong addition; not one of its :data:`PARTS`), and
     which effect was ranked first most often in its place.  The control (``none``) can only
     have wrong additions.  ``by``: the grouping, the hidden effect first (``("effect",
@@ -591,6 +608,9 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
             "added first %": 100 * float(group["first added"].isin({effect, *PARTS.get(effect, ())}).mean()),
             "equation error fall (median x)": group["equation error fall"].median(),
             "free-run error fall (median x)": group["free-run error fall"].median(),
+            "free-run error fall (least x)": group["free-run error fall"].min(),
+            "start to final fall (median x)": group["start to final fall"].median(),
+            "start to final fall (least x)": group["start to final fall"].min(),
             "wrong addition %": 100 * float(np.mean(wrong)),
             "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
         }
