@@ -94,6 +94,11 @@ def test_identically_zero_target_is_named():
         ("[model.library]\nterms = []\n[data.train]\nfile = 'x.csv'\n", r"terms is empty: list the terms"),
         ("[model]\n[data.train]\nfile = 'x.csv'\n[diagnose]\nrefine = true\n",
          r"\[diagnose\] compares the models on a test record: add \[data.test\]"),
+        # outside check, 2026-11-26: each error named a term, not the field
+        ("[model]\ncoordinate = 'x y'\n[data.train]\nfile = 'x.csv'\n",
+         r"\[model\] coordinate = 'x y' is not a name: use letters, digits and _"),
+        ("[model.library]\nterms = ['x', \"x''\"]\n[data.train]\nfile = 'x.csv'\n",
+         r"\[model.library\] terms lists x'', the inertia: it is always in the model"),
     ],
 )
 def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):

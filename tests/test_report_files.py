@@ -82,6 +82,13 @@ def test_a_rerun_removes_the_earlier_runs_figures_and_a_foreign_result_is_refuse
     assert main(["run", str(write_spec(tmp_path)), "--out", str(foreign)]) == 2
     assert "holds a result.json that cvxid did not write" in capsys.readouterr().err
     assert (foreign / "result.json").read_text() == '{"accuracy": 0.93}' and len(list(foreign.iterdir())) == 1
+    # a report's own names without a result.json beside them are the user's (an outside check lost its notes)
+    notes = tmp_path / "notes"
+    notes.mkdir()
+    (notes / "report.md").write_text("my notes")
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(notes)]) == 2
+    assert "holds report.md but no result.json of an earlier cvxid run" in capsys.readouterr().err
+    assert (notes / "report.md").read_text() == "my notes" and len(list(notes.iterdir())) == 1
 
 
 def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):

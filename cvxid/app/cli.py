@@ -40,8 +40,8 @@ def _run(args) -> int:
     if path:
         print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
     if args.profile:
-        print("\nwhere the seconds went (cumulative; nested stages count in each):")
-        print(table.to_string(float_format=lambda v: f"{v:.3f}"))
+        print("\nwhere the seconds went (cumulative; nested stages count in each; starting Python is before the run):")
+        print(table.to_string(float_format=lambda v: f"{v:.3f}", na_rep="–"))
     return 0
 
 

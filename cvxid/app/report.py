@@ -58,12 +58,23 @@ def prepare_folder(out) -> Path:
     return out
 
 
+FIGURES = ("path", "delay_profile", "diagnosis", "refinement", "responses", "residuals", "orders", "test_fit")
+"""The figures a report may hold (:func:`write_report`)."""
+WRITTEN = ("report.md", "model.json", *(f"{name}.png" for name in FIGURES))
+"""The files a report writes beside ``result.json``."""
+
+
 def earlier_run(out: Path) -> dict | None:
     """What an earlier run left in ``out``: its ``result.json`` (its ``name`` and the
     ``figures`` it wrote), or None when the folder holds none.  A ``result.json`` that is
-    not a cvxid result is an error: cvxid replaces only its own files."""
+    not a cvxid result, or files of a report's names (:data:`WRITTEN`) without one, are an
+    error: cvxid replaces only its own files."""
     path = out / "result.json"
     if not path.exists():
+        theirs = sorted(name for name in WRITTEN if (out / name).exists())
+        if theirs:
+            raise CvxidError(f"--out {out} holds {', '.join(theirs)} but no result.json of an earlier cvxid run: "
+                             "cvxid replaces only its own files; choose another --out, or move those files")
         return None
     try:
         data = json.loads(path.read_text())

@@ -32,7 +32,7 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import polish
+from cvxid.identify.output_error import cancelling, polish
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
@@ -92,7 +92,16 @@ def _warn_confounded_gain(out: RunResult) -> None:
             continue
         name, physical = spec.parameter_name(signal), model.physical
         determined = f"their difference {name} - gain = {physical[name] - physical['gain']:.4g} is"
-        if interval and interval[0] <= 0:
+        if cancelling(physical.get(name, 0.0), physical.get("gain", 0.0)):
+            warnings.warn(
+                f"the feedback gain ({physical['gain']:.6g}) and {name} ({physical[name]:.6g}) nearly cancel: "
+                f"{determined} what the data determine, and the two apart (with the delay, {out.system.tau:.4g} s, "
+                f"and the damping) are most likely a near-collinear fit of {signal} and {signal}(t - tau), unless the "
+                "system's stiffness and feedback do nearly cancel. Give the gain "
+                "([model.delay] gain = …), or let the selection weigh the stiffness (a library of candidate terms, "
+                "as cvxid init writes, penalises the x that the gain trades with, where a listed x is not)",
+                CvxidWarning, stacklevel=2)
+        elif interval and interval[0] <= 0:
             warnings.warn(
                 f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
@@ -147,12 +156,31 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
+    elif _spans_range(out.tau.get("interval"), delay) and not (out.polish is not None and _trading(out.polish)):
+        low, high = out.tau["interval"]
+        warnings.warn(
+            f"the delay is not determined by these data: its 95 % interval {low:.4g} … {high:.4g} s spans most of "
+            f"the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} s is one "
+            "point of a flat profile (see delay_profile.png) and the other parameters hold at that delay only. Give "
+            "the gain if it is known ([model.delay] gain), a longer record or one whose forcing reaches the "
+            "frequencies where the delay shifts the phase", CvxidWarning, stacklevel=2)
     elif estimate <= tolerance and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
             "other parameters' standard errors hold at tau = 0 only. Give the delay a floor ([model.delay] tau_min) "
             "if the loop is known to be late, or a longer, richer record", CvxidWarning, stacklevel=2)
+
+
+UNDETERMINED = 0.5
+"""A delay whose 95 % interval covers this share of its search range is not determined."""
+
+
+def _spans_range(interval, delay) -> bool:
+    """Whether a delay's interval covers :data:`UNDETERMINED` of ``[tau_min, tau_max]``."""
+    if not interval or not np.all(np.isfinite(interval)):
+        return False
+    return interval[1] - interval[0] >= UNDETERMINED * (delay.tau_max - delay.tau_min)
 
 
 def _warn_implausible(out: RunResult) -> None:

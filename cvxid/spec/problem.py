@@ -28,7 +28,7 @@ from cvxid.model.input_delay import InputDelay
 from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, PARAMETERS, Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
-from cvxid.model.terms import parse_term
+from cvxid.model.terms import Derivative, parse_term
 from cvxid.parallel import BACKENDS, check_backend
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import KINDS, WINDOWS, Windows
@@ -481,6 +481,9 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     """One equation's model; in a coupled spec ``others`` are the coordinates its terms and
     its delayed feedback may read."""
     coord = _string(table, "coordinate", where, "x")
+    if not coord.isidentifier():
+        raise CvxidError(f"spec: [{where}] coordinate = '{coord}' is not a name: use letters, digits and _ (x, "
+                         "theta, x1); several coordinates are several [[model.equation]] tables")
     coords = (coord, *others)
     lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms", "select", "keep_linear"})
     extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
@@ -495,6 +498,11 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             raise CvxidError(f"spec: [{where}.library] terms is empty: list the terms (e.g. [\"{coord}\", "
                              f"\"{coord}'\"]), or remove terms for an order's polynomial library")
         library = Library(parse_term(t, coords) for t in terms)
+        inertial = [t.name for t in library if isinstance(t, Derivative) and t.order >= 2]
+        if inertial:
+            raise CvxidError(f"spec: [{where}.library] terms lists {inertial[0]}, the inertia: it is always in the "
+                             "model (its coefficient is m, or give [model] mass); list terms of the positions and "
+                             f"velocities only (\"{coord}\", \"{coord}'\", …)")
         if not _bool(lib_t, "select", f"{where}.library", False):
             listed = tuple(library.names)  # the user's terms are estimated, not selected away
     elif "select" in lib_t:
