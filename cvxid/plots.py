@@ -137,7 +137,8 @@ def responses_figure(labels, comparisons):
     axes[0, 0].legend(fontsize=8, loc="lower left", ncol=2)
     for ax in axes[-1]:
         ax.set_xlabel("time [s]")
-    polished = " (the last: the run's final model, after it)" if labels[-1].startswith("final") else ""
+    polished = " (the last: the run's final model after it, from the estimated initial state)" \
+        if labels[-1].startswith("final") else ""
     fig.suptitle("the diagnosis's models, each added effect in turn (free run from the record's first state, "
                  f"before the output-error polish){polished}", fontsize=9)
     fig.tight_layout(rect=(0, 0, 1, 0.96))

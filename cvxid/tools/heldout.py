@@ -78,6 +78,7 @@ from cvxid.app.report import plain
 from cvxid.app.run import run
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.compare import compare_system, mean_fit
 from cvxid.errors import CvxidError
 from cvxid.identify.output_error import delay_standard_error
 from cvxid.model.library import Library, resolve_term
@@ -445,21 +446,22 @@ def _falls(result: dict, effect: str) -> dict:
     elif step is not None:
         free_run = step["test_rms_before"] / step["test_rms_after"]
     return {"first added": steps[0]["added"] if steps else None, "equation error fall": equation,
-            "free-run error fall": free_run, "start to final fall": _start_to_final(result, steps, step)}
+            "free-run error fall": free_run}
 
 
-def _start_to_final(result: dict, steps: list[dict], step: dict | None) -> float:
-    r"""The test free run's error of the model the run started from over the run's final
-    model's (after the output-error polish, when the spec polishes), both from the record's
-    own start: :math:`(100 - \text{fit}_0) / (100 - \text{fit})`; what a user sees the
-    diagnosis do.  The fall at the step compares equation-error models, whose free run a
-    Coulomb friction can make worse until the polish (report seed 1005: 87 → 79 % at the
-    step, 98.9 % at the end).  NaN when no equation-stage step added the effect, infinite
-    when the starting model diverged."""
-    final = result.get("test_fit_percent_record_start")
-    if step is None or step["stage"] != "equation" or not isinstance(final, (int, float)):
+def _start_to_final(out) -> float:
+    r"""The test free run's error of the model the diagnosis started from over the run's
+    final model's (after the output-error polish, when the spec polishes), both from the
+    initial state estimated on the test record as the run reports its fit:
+    :math:`(100 - \text{fit}_0) / (100 - \text{fit})`, what a user sees the diagnosis do.
+    The falls at a step compare the diagnosis's equation-error models from the record's
+    first state, where a Coulomb friction's model can stick (report seed 1005: 87 → 79 %
+    at the step; the final model 98.9 % from an estimated start, 81.7 % from the record's
+    own).  NaN when nothing was added, infinite when the starting model diverged."""
+    refinement, final = out.refinement, mean_fit(out.comparisons or {})
+    if refinement is None or not refinement.steps or refinement.start is None or final is None:
         return np.nan
-    start = steps[0]["fit_before"]
+    start = mean_fit(compare_system(refinement.start, out.test))
     return np.inf if start is None else (100.0 - start) / max(100.0 - final, 1e-12)
 
 
@@ -507,6 +509,8 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
             row.update(_row(result, oscillator, known_gain))
+            if mode == "diagnosis":
+                row["start to final fall"] = _start_to_final(out)
             if mode == "structure":
                 row.update(_delay_limit(out, oscillator))
             if mode.startswith("selection"):
