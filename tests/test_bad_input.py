@@ -363,3 +363,25 @@ def test_a_spec_data_error_names_its_table(tmp_path, capsys, rng):
     err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3).replace('file = "train.csv"',
                                                                          'file = "train.csv"\ntime = "time"'))
     assert err.startswith("cvxid: error: spec: [data.train]") and "no column named 'time'" in err, err
+
+
+def test_a_test_record_that_is_the_training_record_is_said(tmp_path):
+    """[data.test] reading the training file's same samples (an outside check's spec): the test figures
+    would be on the data the fit saw, and the run says so; a split of one file by fraction is not warned."""
+    import json
+
+    from cvxid.app.cli import main
+    from cvxid.simulate import System, simulate
+
+    t = np.arange(6000) * 1e-3
+    force = lambda s: 3 * np.sin(2.1 * s) + 2 * np.sin(5.3 * s + 1)
+    x, _ = simulate(System((parse_term("x'"), parse_term("x")), np.array([0.5, 6.0]), 1.0, "x"), t, force, 0.3, 0.0)
+    np.savetxt(tmp_path / "a.csv", np.column_stack([t, x, force(t)]), delimiter=",", header="t,x,f", comments="")
+    said = "[data.test] reads the same file and samples as [data.train]"
+    for test, warned in (('file = "a.csv"', True), ('file = "a.csv"\nfraction = [0.7, 1.0]', False)):
+        train = 'file = "a.csv"' + ("" if warned else "\nfraction = [0.0, 0.7]")
+        (tmp_path / "spec.toml").write_text(f'[data.train]\n{train}\n[data.test]\n{test}\n[model.library]\n'
+                                            'terms = ["x", "x\'"]\n')
+        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+        warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+        assert any(said in w for w in warnings) == warned, warnings

@@ -309,3 +309,25 @@ def test_a_delay_the_record_does_not_determine_is_said_aloud(tmp_path):
     low, high = result["tau"]["interval"]
     assert low <= 0.12 <= high and high - low > 0.2
     assert any("the delay is not determined by these data" in w for w in result["warnings"]), result["warnings"]
+
+
+@pytest.mark.slow
+def test_a_free_gain_on_a_loop_without_feedback_is_told_to_go_not_to_look_further(tmp_path):
+    """A linear oscillator without feedback, identified with [model.delay] and its gain free (an outside check):
+    the delay ran to tau_max and the run said to raise it; the gain's interval holds 0, so it says the data show
+    no feedback."""
+    import json
+
+    from cvxid.app.cli import main
+
+    text = CANCELLING_SPEC.replace('delay = { signal = "x", gain = 1.2, tau = 0.12 }\n', "") + \
+        '[fit]\nrefine = "output_error"\n'
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    low, high = result["polish"]["intervals"]["gain"]
+    assert low <= 0 <= high
+    warned = " ".join(result["warnings"])
+    assert result["tau"]["estimate"] >= 0.399  # (measured: 0.4, the top of the range)
+    assert "raise [model.delay] tau_max" not in warned
+    assert "the data show no fed-back signal to delay; remove [model.delay]" in warned

@@ -148,7 +148,13 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     if estimate is None or delay is None or not delay.exact:
         return
     tolerance = 1e-3 * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
-    if estimate >= delay.tau_max - tolerance:
+    gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
+    if estimate >= delay.tau_max - tolerance and gain is not None and gain[0] <= 0 <= gain[1]:
+        warnings.warn(
+            f"the delay tau = {estimate:.4g} s is at the top of its search range and the feedback gain's 95 % "
+            f"interval ({gain[0]:.4g} … {gain[1]:.4g}) contains 0: the data show no fed-back signal to delay; remove "
+            "[model.delay] (or give its gain if the loop is known to feed back)", CvxidWarning, stacklevel=2)
+    elif estimate >= delay.tau_max - tolerance:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the top of its search range (tau_max = {delay.tau_max:g} s): the "
             "true delay may be longer; raise [model.delay] tau_max", CvxidWarning, stacklevel=2)

@@ -150,6 +150,15 @@ class FitSettings:
     prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
 
 
+def _same_record(folder: Path, table: Table, other: Table) -> bool:
+    """Whether two data tables read the same samples of the same file."""
+    try:
+        same_file = (folder / str(table["file"])).resolve() == (folder / str(other["file"])).resolve()
+    except (KeyError, OSError):
+        return False
+    return same_file and all(table.get(k) == other.get(k) for k in ("samples", "fraction"))
+
+
 @dataclass(frozen=True)
 class ProblemSpec:
     """A parsed problem: name, the system of N >= 1 equations, fit settings, data
@@ -228,6 +237,11 @@ class ProblemSpec:
         if velocity is None and self.fit.velocity not in VELOCITIES:
             velocity = self.fit.velocity  # [fit] velocity names a measured column
         first = self.coordinates[0]
+        train = self.data.get("train", {})
+        if which == "test" and "file" in train and _same_record(self.folder, table, train):
+            warnings.warn("spec: [data.test] reads the same file and samples as [data.train]: the test figures (and "
+                          "the diagnosis's choices) are then on the data the fit saw; give another record, or split "
+                          "one with samples or fraction", CvxidWarning, stacklevel=3)
         try:
             return self._load(which, table, where, inputs, velocity, first)
         except CvxidError as exc:  # the file's own message, and the spec's table that named it
