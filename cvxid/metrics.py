@@ -27,7 +27,7 @@ def _welch(y: np.ndarray, fs: float, segment: int) -> tuple[np.ndarray, np.ndarr
     """Welch's estimate (Hann segments half overlapped, each detrended), the segments'
     periodograms averaged a chunk of :data:`CHUNK_SEGMENTS` at a time: the same segments
     and mean as one call on the whole record, in the memory of a chunk."""
-    hop = segment // 2
+    hop = segment - segment // 2  # (scipy's: noverlap = segment // 2)
     if segment < 2 or y.size <= CHUNK_SEGMENTS * hop + segment:
         return welch(y, fs=fs, nperseg=segment)
     step = CHUNK_SEGMENTS * hop  # chunk j holds the segments starting in [j step, (j + 1) step)

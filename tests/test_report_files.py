@@ -89,6 +89,11 @@ def test_a_rerun_removes_the_earlier_runs_figures_and_a_foreign_result_is_refuse
     assert main(["run", str(write_spec(tmp_path)), "--out", str(notes)]) == 2
     assert "holds report.md but no result.json of an earlier cvxid run" in capsys.readouterr().err
     assert (notes / "report.md").read_text() == "my notes" and len(list(notes.iterdir())) == 1
+    # a run stopped before its result.json (its figures written, then Ctrl-C) leaves a folder the next run reuses
+    stopped = tmp_path / "stopped"
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(stopped)]) == 0
+    (stopped / "result.json").unlink()
+    assert main(["run", str(write_spec(tmp_path)), "--out", str(stopped)]) == 0 and (stopped / "result.json").exists()
 
 
 def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):

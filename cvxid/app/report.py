@@ -55,7 +55,12 @@ def prepare_folder(out) -> Path:
     if not os.access(out, os.W_OK | os.X_OK):
         raise CvxidError(f"cannot write into the output folder {out} (permission denied); choose another --out")
     earlier_run(out)  # a result.json cvxid did not write is refused now, not after the run
+    (out / MARKER).touch()  # (a run stopped before its result.json leaves files the next run may replace)
     return out
+
+
+MARKER = ".cvxid"
+"""An empty file marking a folder cvxid writes its reports into."""
 
 
 FIGURES = ("path", "delay_profile", "diagnosis", "refinement", "responses", "residuals", "orders", "test_fit")
@@ -67,12 +72,13 @@ WRITTEN = ("report.md", "model.json", *(f"{name}.png" for name in FIGURES))
 def earlier_run(out: Path) -> dict | None:
     """What an earlier run left in ``out``: its ``result.json`` (its ``name`` and the
     ``figures`` it wrote), or None when the folder holds none.  A ``result.json`` that is
-    not a cvxid result, or files of a report's names (:data:`WRITTEN`) without one, are an
-    error: cvxid replaces only its own files."""
+    not a cvxid result, or files of a report's names (:data:`WRITTEN`) without one in a
+    folder cvxid has not written to (:data:`MARKER`: a run stopped before its
+    ``result.json``), are an error: cvxid replaces only its own files."""
     path = out / "result.json"
     if not path.exists():
         theirs = sorted(name for name in WRITTEN if (out / name).exists())
-        if theirs:
+        if theirs and not (out / MARKER).exists():
             raise CvxidError(f"--out {out} holds {', '.join(theirs)} but no result.json of an earlier cvxid run: "
                              "cvxid replaces only its own files; choose another --out, or move those files")
         return None

@@ -92,7 +92,7 @@ def _warn_confounded_gain(out: RunResult) -> None:
             continue
         name, physical = spec.parameter_name(signal), model.physical
         determined = f"their difference {name} - gain = {physical[name] - physical['gain']:.4g} is"
-        if cancelling(physical.get(name, 0.0), physical.get("gain", 0.0)):
+        if cancelling(model.coefficients.get(signal, 0.0), -model.coefficients.get(spec.delayed_term.name, 0.0)):
             warnings.warn(
                 f"the feedback gain ({physical['gain']:.6g}) and {name} ({physical[name]:.6g}) nearly cancel: "
                 f"{determined} what the data determine, and the two apart (with the delay, {out.system.tau:.4g} s, "
@@ -149,6 +149,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         return
     tolerance = 1e-3 * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
+    interval = out.tau.get("interval")
+    said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
+        (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
     if estimate >= delay.tau_max - tolerance and gain is not None and gain[0] <= 0 <= gain[1]:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the top of its search range and the feedback gain's 95 % "
@@ -162,20 +165,20 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
-    elif _spans_range(out.tau.get("interval"), delay) and not (out.polish is not None and _trading(out.polish)):
-        low, high = out.tau["interval"]
-        warnings.warn(
-            f"the delay is not determined by these data: its 95 % interval {low:.4g} … {high:.4g} s spans most of "
-            f"the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} s is one "
-            "point of a flat profile (see delay_profile.png) and the other parameters hold at that delay only. Give "
-            "the gain if it is known ([model.delay] gain), a longer record or one whose forcing reaches the "
-            "frequencies where the delay shifts the phase", CvxidWarning, stacklevel=2)
     elif estimate <= tolerance and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
             "other parameters' standard errors hold at tau = 0 only. Give the delay a floor ([model.delay] tau_min) "
             "if the loop is known to be late, or a longer, richer record", CvxidWarning, stacklevel=2)
+    elif _spans_range(interval, delay) and not said:
+        warnings.warn(
+            f"the delay is not determined by these data: its 95 % interval {interval[0]:.4g} … {interval[1]:.4g} s "
+            f"spans most of the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} "
+            "s is one point of a flat profile (see delay_profile.png) and the other parameters hold at that delay "
+            "only. " + ("Give the gain if it is known ([model.delay] gain), a" if delay.gain is None else "A") +
+            " longer record or one whose forcing reaches the frequencies where the delay shifts the phase",
+            CvxidWarning, stacklevel=2)
 
 
 UNDETERMINED = 0.5

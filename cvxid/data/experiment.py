@@ -293,10 +293,10 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         with pd.read_csv(path, chunksize=CSV_CHUNK, **options) as chunks:
             for chunk in chunks:
                 for c in chunk.columns:
-                    pieces.setdefault(str(c).strip(), []).append(chunk[c].to_numpy())
+                    pieces.setdefault(c, []).append(chunk[c].to_numpy())
     except Exception as exc:  # pandas raises many types for malformed files
         raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
-    return {c: np.concatenate(pieces.pop(c)) for c in list(pieces)}
+    return {str(c).strip(): np.concatenate(pieces.pop(c)) for c in list(pieces)}  # (as the whole file's: the last)
 
 
 def _numeric(text: str) -> bool:

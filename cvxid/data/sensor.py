@@ -146,6 +146,8 @@ def _percentile_with_ones(values: np.ndarray, ones: int, q: float) -> float:
     """``np.percentile`` of ``values`` (each above 1) and ``ones`` more values of 1,
     without the array of ones (a record's worth of samples)."""
     ordered = np.sort(values)
+    if ordered.size == 0:
+        return 1.0
     count = ordered.size + ones
     position = q / 100 * (count - 1)
     below = int(np.floor(position))

@@ -208,7 +208,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     estimated delay only.  ``initial``: each experiment's starting states (see
     :func:`output_error`)."""
     start = time.perf_counter()
-    system = IdentifiedSystem.of(fitted)
+    system, given = IdentifiedSystem.of(fitted), initial
     experiments = _experiments(experiments, _shortest(system))
     start_from = without_cancelling_gain(system) if grid else system
     points = _delay_profile(start_from, experiments, initial, coarse_step, grid) if grid else {}
@@ -226,7 +226,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     before = output_rms(system, experiments)
     if points and not best.rms_after <= before:  # the profile's basin fits worse than the start: fit from the start
         try:
-            own = output_error(system, experiments, None, step=coarse_step, max_iterations=max_iterations,
+            own = output_error(system, experiments, given, step=coarse_step, max_iterations=max_iterations,
                                input_noise=not final)
         except CvxidError:
             own = None
@@ -239,11 +239,12 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
         if _stride(coarse_step, experiments) == 1:  # the sample step is the profile's step
             level = best
     if not best.rms_after <= before:
+        tried = "from the delay profile's best delay and from the start's own" if points else "from the start"
         warnings.warn(
             f"the output-error polish ended with a larger simulation error than its start (RMS {before:.4g} -> "
-            f"{best.rms_after:.4g}), from the delay profile's best delay and from the start's own: the simulation "
-            "error has another basin the fit cannot leave (an estimated gain trading with the stiffness?); read the "
-            "polished model with care, or give the gain ([model.delay] gain)", CvxidWarning, stacklevel=2)
+            f"{best.rms_after:.4g}), fitted {tried}: the simulation error has another basin the fit cannot leave "
+            "(an estimated gain trading with the stiffness?); read the polished model with care, or give the gain "
+            "([model.delay] gain)", CvxidWarning, stacklevel=2)
     profile = None
     if points:
         points[level.parameters["tau"]] = (level.rms_after, level)
@@ -359,7 +360,7 @@ def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> Ident
     r"""A start for the polish: each equation whose estimated gain and its signal's
     coefficient cancel (:func:`cancelling`) as its net model with a small feedback,
 
-    .. math:: (k - b + b_0)\,x + (c + b\,\tau)\,\dot x = \dots + b_0\,x(t - \tau),
+    .. math:: (k - b + b_0)\,x + (c + (b - b_0)\,\tau)\,\dot x = \dots + b_0\,x(t - \tau),
               \qquad b_0 = \beta\,|k - b|\,\mathrm{sign}\,b,
 
     from :math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x` (:math:`\beta` =
@@ -374,10 +375,10 @@ def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> Ident
         if signal is None or not cancelling(coefs.get(signal, 0.0), gain):
             models[label] = model
             continue
-        small = SMALL_GAIN * abs(coefs[signal] - gain) * np.sign(gain)
+        small = SMALL_GAIN * (abs(coefs[signal] - gain) or abs(gain)) * np.sign(gain)  # (never 0: it is profiled)
         rate = signal + "'"
         if rate in coefs and system.tau is not None:
-            coefs[rate] = coefs[rate] + gain * system.tau
+            coefs[rate] = coefs[rate] + (gain - small) * system.tau
         coefs[signal] = coefs[signal] - gain + small
         coefs[spec.delayed_term.name] = -small
         models[label] = IdentifiedModel(spec, coefs, model.lam, dict(model.info), model.tau)

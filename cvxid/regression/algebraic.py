@@ -49,7 +49,6 @@ from math import comb, factorial
 from typing import Callable
 
 import numpy as np
-from numpy.lib.stride_tricks import sliding_window_view
 from scipy.integrate import cumulative_simpson
 from scipy.signal import correlate
 
@@ -163,10 +162,10 @@ class WindowedTransform:
     row every ``stride`` samples: row ``i`` is the operation on samples
     ``[i * stride, i * stride + length)`` evaluated at the window's end.
 
-    The rows are made a chunk of windows at a time (:meth:`rows`): a chunk reads at most
-    :data:`CHUNK` samples (or two windows), and only the samples its windows cover, so a
-    long record's column costs the memory of a chunk and the time of the samples read, not
-    of the record."""
+    The rows are made a chunk of windows at a time (:meth:`rows`): a chunk's windows span at
+    most :data:`CHUNK` samples (or two windows), and only the samples they cover are read (at
+    most :data:`OVERLAP` times each when gathered), so a long record's column costs the
+    memory of a chunk and the time of the samples read, not of the record."""
 
     def __init__(self, time: np.ndarray, orders: AlgebraicOrders, length: int, stride: int):
         t = np.asarray(time, dtype=float)

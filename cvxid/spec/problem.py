@@ -512,11 +512,13 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             raise CvxidError(f"spec: [{where}.library] terms is empty: list the terms (e.g. [\"{coord}\", "
                              f"\"{coord}'\"]), or remove terms for an order's polynomial library")
         library = Library(parse_term(t, coords) for t in terms)
-        inertial = [t.name for t in library if isinstance(t, Derivative) and t.order >= 2]
-        if inertial:
-            raise CvxidError(f"spec: [{where}.library] terms lists {inertial[0]}, the inertia: it is always in the "
-                             "model (its coefficient is m, or give [model] mass); list terms of the positions and "
-                             f"velocities only (\"{coord}\", \"{coord}'\", …)")
+        second = [t for t in library if isinstance(t, Derivative) and t.order >= 2]
+        if second:
+            what = "the inertia: it is always in the model (its coefficient is m, or give [model] mass)" if \
+                (second[0].coordinate, second[0].order) == (coord, 2) else \
+                f"a derivative of order {second[0].order}, which no simulation can evaluate"
+            raise CvxidError(f"spec: [{where}.library] terms lists {second[0].name}, {what}; list terms of the "
+                             f"positions and velocities only (\"{coord}\", \"{coord}'\", …)")
         if not _bool(lib_t, "select", f"{where}.library", False):
             listed = tuple(library.names)  # the user's terms are estimated, not selected away
     elif "select" in lib_t:
