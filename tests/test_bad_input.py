@@ -99,6 +99,8 @@ def test_identically_zero_target_is_named():
          r"\[model\] coordinate = 'x y' is not a name: use letters, digits and _"),
         ("[model.library]\nterms = ['x', \"x''\"]\n[data.train]\nfile = 'x.csv'\n",
          r"\[model.library\] terms lists x'', the inertia: it is always in the model"),
+        ("[model.library]\nterms = ['x', \"x'\", ' x']\n[data.train]\nfile = 'x.csv'\n",
+         r"\[model.library\] terms lists x twice \(as written: 'x', ' x'\); list each term once"),
     ],
 )
 def test_hostile_or_malformed_specs_exit_2(tmp_path, capsys, text, message):

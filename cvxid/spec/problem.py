@@ -511,7 +511,13 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         if not terms and not extra:
             raise CvxidError(f"spec: [{where}.library] terms is empty: list the terms (e.g. [\"{coord}\", "
                              f"\"{coord}'\"]), or remove terms for an order's polynomial library")
-        library = Library(parse_term(t, coords) for t in terms)
+        parsed = [parse_term(t, coords) for t in terms]
+        names = [t.name for t in parsed]
+        twice = next((n for i, n in enumerate(names) if n in names[:i]), None)
+        if twice is not None:
+            raise CvxidError(f"spec: [{where}.library] terms lists {twice} twice (as written: "
+                             f"{', '.join(repr(t) for t, n in zip(terms, names) if n == twice)}); list each term once")
+        library = Library(parsed)
         second = [t for t in library if isinstance(t, Derivative) and t.order >= 2]
         if second:
             what = "the inertia: it is always in the model (its coefficient is m, or give [model] mass)" if \
