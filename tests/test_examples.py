@@ -129,6 +129,17 @@ def test_sensor_fault_rules_on_random_systems(monkeypatch, tmp_path, capsys):
     assert (outlier["gap"] >= outlier["warn"]).all() and (outlier["gap"] > clean["warn"] - 0.5).all(), fits
 
 
+def test_the_delays_warnings_on_random_systems(monkeypatch, tmp_path, capsys):
+    """Report seed 1001 of examples/heldout_warnings.py: its delay (0.075 s) is not in its 8 s record; with
+    the gain given the run says the delay is not determined (errors 230 and 444 %, it said nothing before), and
+    with it estimated it never tells the user to raise tau_max where the gain trades with the stiffness."""
+    run_example("heldout_warnings.py", monkeypatch, tmp_path, capsys, SEEDS="1001:1002")
+    rows = pd.read_csv(tmp_path / "heldout_warnings.csv")
+    given = rows[(rows["gain"] == "given") & (rows["effect"] != "quadratic_stiffness")]
+    assert given["not determined"].all() and (given["tau error %"].abs() > 100).all() and given["covers"].all()
+    assert not rows["raise tau_max"].any() and not rows["no feedback"].any()
+
+
 @pytest.mark.slow
 @pytest.mark.skipif(not (SHARED_DATA / "unbalanced_disk" / "training-val-test-data.npz").is_file(),
                     reason="unbalanced disk data absent")

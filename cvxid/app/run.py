@@ -32,7 +32,7 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import cancelling, polish
+from cvxid.identify.output_error import cancelling_gain, polish
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
@@ -92,14 +92,14 @@ def _warn_confounded_gain(out: RunResult) -> None:
             continue
         name, physical = spec.parameter_name(signal), model.physical
         determined = f"their difference {name} - gain = {physical[name] - physical['gain']:.4g} is"
-        if cancelling(model.coefficients.get(signal, 0.0), -model.coefficients.get(spec.delayed_term.name, 0.0)):
+        if cancelling_gain(model) is not None:
             warnings.warn(
                 f"the feedback gain ({physical['gain']:.6g}) and {name} ({physical[name]:.6g}) nearly cancel: "
                 f"{determined} what the data determine, and the two apart (with the delay, {out.system.tau:.4g} s, "
                 f"and the damping) are most likely a near-collinear fit of {signal} and {signal}(t - tau), unless the "
                 "system's stiffness and feedback do nearly cancel. Give the gain "
                 "([model.delay] gain = …), or let the selection weigh the stiffness (a library of candidate terms, "
-                "as cvxid init writes, penalises the x that the gain trades with, where a listed x is not)",
+                f"as cvxid init writes, penalises the {signal} that the gain trades with, where a listed one is not)",
                 CvxidWarning, stacklevel=2)
         elif interval and interval[0] <= 0:
             warnings.warn(
@@ -138,10 +138,14 @@ def _trading(polish) -> tuple[str, ...]:
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
-    r"""A fed-back delay estimated at an end of its search range, said aloud: at ``tau_max``
-    the true delay may be longer; at ``tau_min`` it may be shorter, and at 0 a damping can
-    stand in for a short delay (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), and the
-    other parameters' standard errors hold at that delay only."""
+    r"""A fed-back delay estimated at an end of its search range, or not determined, said
+    aloud: at ``tau_max`` the true delay may be longer (unless the estimated gain's interval
+    holds 0: no feedback shows; or the gain trades with its signal's coefficient, which
+    :func:`_warn_confounded_gain` says: then the delay may lie anywhere); at ``tau_min`` it
+    may be shorter, and at 0 a damping can stand in for a short delay
+    (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`); an interval over
+    :data:`UNDETERMINED` of the range is a flat profile.  The other parameters' standard
+    errors hold at that delay only."""
     estimate = (out.tau or {}).get("estimate")
     spec = next(iter(out.system.models.values())).spec
     delay = spec.delay
@@ -152,7 +156,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
-    if estimate >= delay.tau_max - tolerance and gain is not None and gain[0] <= 0 <= gain[1]:
+    if estimate >= delay.tau_max - tolerance and said:
+        pass  # (the gain's warning says why the delay may lie anywhere in its range)
+    elif estimate >= delay.tau_max - tolerance and gain is not None and gain[0] <= 0 <= gain[1]:
         warnings.warn(
             f"the delay tau = {estimate:.4g} s is at the top of its search range and the feedback gain's 95 % "
             f"interval ({gain[0]:.4g} … {gain[1]:.4g}) contains 0: the data show no fed-back signal to delay; remove "

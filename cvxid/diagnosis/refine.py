@@ -112,7 +112,7 @@ class Refinement:
 
     def plot(self, final: dict | None = None, final_mse: float | None = None):
         """The error history: the test record's equation-error MSE and free-run error
-        (:math:`1 - \text{fit}/100`) before and after each added effect, and with
+        (:math:`1 - \\text{fit}/100`) before and after each added effect, and with
         ``final`` (coordinate → :class:`~cvxid.diagnosis.compare.Comparison` of the run's
         final model, after the output-error polish) and its equation-error MSE a last
         point for it."""

@@ -351,14 +351,20 @@ SMALL_GAIN = 0.1
 """The feedback gain a cancelling fit restarts from, as a share of its net stiffness."""
 
 
-def cancelling(coefficient: float, gain: float) -> bool:
-    """Whether ``coefficient`` and ``gain`` nearly cancel (:data:`CANCELLING`)."""
-    return abs(coefficient - gain) < CANCELLING * max(abs(coefficient), abs(gain))
+def cancelling_gain(model: IdentifiedModel) -> float | None:
+    """The estimated feedback gain of ``model`` when it and the coefficient of its own
+    signal nearly cancel (:data:`CANCELLING`; the delayed column carries minus the gain),
+    else None."""
+    signal = model.spec.confounded_signal
+    if signal is None:
+        return None
+    k, gain = model.coefficients.get(signal, 0.0), -model.coefficients.get(model.spec.delayed_term.name, 0.0)
+    return gain if abs(k - gain) < CANCELLING * max(abs(k), abs(gain)) else None
 
 
 def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
     r"""A start for the polish: each equation whose estimated gain and its signal's
-    coefficient cancel (:func:`cancelling`) as its net model with a small feedback,
+    coefficient cancel (:func:`cancelling_gain`) as its net model with a small feedback,
 
     .. math:: (k - b + b_0)\,x + (c + (b - b_0)\,\tau)\,\dot x = \dots + b_0\,x(t - \tau),
               \qquad b_0 = \beta\,|k - b|\,\mathrm{sign}\,b,
@@ -369,12 +375,11 @@ def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> Ident
     system = IdentifiedSystem.of(fitted)
     models = {}
     for label, model in system.models.items():
-        spec, coefs = model.spec, dict(model.coefficients)
-        signal = spec.confounded_signal
-        gain = -coefs.get(spec.delayed_term.name, 0.0) if signal is not None else 0.0
-        if signal is None or not cancelling(coefs.get(signal, 0.0), gain):
+        gain = cancelling_gain(model)
+        if gain is None:
             models[label] = model
             continue
+        spec, coefs, signal = model.spec, dict(model.coefficients), model.spec.confounded_signal
         small = SMALL_GAIN * (abs(coefs[signal] - gain) or abs(gain)) * np.sign(gain)  # (never 0: it is profiled)
         rate = signal + "'"
         if rate in coefs and system.tau is not None:

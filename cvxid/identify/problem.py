@@ -422,7 +422,7 @@ def _installed() -> frozenset[str]:
 
 
 def _tie_factor(reduced: Reduced, names, a: str, b: str, factor: float) -> float:
-    """The tie :math:`c_a = \rho c_b` in scaled units."""
+    r"""The tie :math:`c_a = \rho c_b` in scaled units."""
     scale = reduced.column_scale
     return factor * scale[names.index(a)] / scale[names.index(b)]
 
@@ -473,7 +473,7 @@ def _tied_bounded_least_squares(reduced: Reduced, names, idx, lower, ties) -> np
 
 
 def constrained_least_squares(reduced: Reduced, names, mask, nonnegative=(), ties=()) -> np.ndarray:
-    """Scaled least-squares coefficients of the reduced regression on the columns in
+    r"""Scaled least-squares coefficients of the reduced regression on the columns in
     ``mask`` (the others zero), ``nonnegative`` columns kept ``>= 0`` (scipy's bounded
     least squares) and ``ties`` ``(a, b, factor)``: :math:`c_a = \rho c_b` (eliminated,
     :func:`_tied_bounded_least_squares`; a small cvxpy problem where they cannot be).  A tie keeps both of its columns or neither."""
