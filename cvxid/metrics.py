@@ -57,17 +57,69 @@ not the noise, makes the third difference (a record sampled at a few times its b
 
 
 def noise_level(y: np.ndarray) -> float:
-    """Standard deviation of white measurement noise, from the median absolute third
+    r"""Standard deviation of white measurement noise, from the median absolute third
     difference (smooth signals contribute almost nothing to it at fine sampling); where that
     exceeds ``SIGNAL_DOMINATES`` times the estimate from the spectrum's floor (its upper
     half taken as white, :func:`_spectrum`), from the floor (the Silverbox, 610 Hz: 4.8 mV by the
-    third difference, 0.12 mV by the floor)."""
+    third difference, 0.12 mV by the floor).
+
+    A quantised record (:func:`quantisation_step` :math:`q`) adds its rounding error,
+    :math:`\sqrt{\sigma^2 + q^2/12}`, and its third differences are multiples of
+    :math:`q`, whose median is read within its bin (the grouped median: the plain one
+    sits on the grid, a few % off at noise 0.01 and steps of 0.001).  One whose estimate
+    falls below :math:`q/\sqrt{12}` is a staircase: most of its third differences are 0
+    (its noise read 0: an outside check, steps of 0.01 on a motion of 0.33 RMS, got the
+    shortest smoothing window, a velocity of spikes and a test fit of 74 % for 99.7 %);
+    its :math:`\sigma` is then the spectrum's floor, which sees part of the noise hidden
+    under a step.  Measured on records rounded to 0.1 to 30 % of their RMS with noise under
+    and over a step: within -4 … +50 % of the true error's deviation (the smoothing
+    window's rule wants no less; it took windows of 33 samples for 373 at 5 % short)."""
     y = np.asarray(y, float)
-    d3 = np.abs(np.diff(y, 3))  # (overwritten by the median: two record-long arrays at most)
-    differences = float(np.median(d3, overwrite_input=True) / 0.6745 / np.sqrt(20.0))
+    q = quantisation_step(y)
+    d3 = np.abs(np.diff(y, 3))
+    differences = (_grouped_median(d3, q) if q > 0 else float(np.median(d3))) / 0.6745 / np.sqrt(20.0)
+    del d3
     _, _, floor_density = _spectrum(y, 1.0)
     floor = float(np.sqrt(0.5 * floor_density))
-    return floor if differences > SIGNAL_DOMINATES * floor else differences
+    white = floor if differences > SIGNAL_DOMINATES * floor else differences
+    rounding = q / np.sqrt(12.0)
+    return float(np.hypot(rounding, floor if white < rounding else white))
+
+
+def _grouped_median(values: np.ndarray, q: float) -> float:
+    """The median of non-negative ``values`` that are whole multiples of ``q``, each read
+    as spread evenly over its bin (``k q`` stands for ``[(k - 1/2) q, (k + 1/2) q)``, and 0
+    for ``[0, q/2)``): the grouped-data median."""
+    levels = np.round(values / q)
+    m = float(np.median(levels))
+    below, at = np.count_nonzero(levels < m), np.count_nonzero(levels == m)
+    low, width = (0.0, 0.5) if m == 0 else (m - 0.5, 1.0)
+    return q * (low + width * (0.5 * levels.size - below) / max(at, 1))
+
+
+QUANTISATION_SAMPLES = 1 << 20
+"""Samples a record's quantisation step is read from (a sensor's step is the same
+throughout; the first 2^20 tell it)."""
+QUANTISED_SHARE = 0.99
+"""Share of the nonzero sample-to-sample changes that must be whole multiples of the
+smallest for a record to count as quantised."""
+
+
+def quantisation_step(y: np.ndarray) -> float:
+    r"""The step :math:`q` a quantised record's values are rounded to (an encoder's count,
+    an ADC's least bit, a file's last printed digit), else 0: the smallest nonzero change
+    between consecutive samples, when :data:`QUANTISED_SHARE` of the nonzero changes are
+    whole multiples of it (to 1 % of :math:`q`).  Rounding to :math:`q` adds an error of
+    standard deviation :math:`q/\sqrt{12}` when the signal crosses several levels between
+    samples, and a slower staircase when it does not."""
+    d = np.abs(np.diff(np.asarray(y[:QUANTISATION_SAMPLES], float)))
+    d = d[(d > 0) & np.isfinite(d)]
+    if d.size < 10:
+        return 0.0
+    q = float(d.min())
+    steps = d / q
+    whole = np.abs(steps - np.round(steps)) <= 0.01
+    return q if np.mean(whole) >= QUANTISED_SHARE else 0.0
 
 
 def noise_ceiling_percent(y: np.ndarray) -> float:

@@ -273,11 +273,8 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         except Exception as exc:  # pandas raises many types for malformed files
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
-    options = {}
-    head = read(nrows=100)
-    if head.shape[1] == 1 and any(sep in str(head.columns[0]) for sep in (";", "\t")):
-        options = {"sep": ";", "decimal": ","} if ";" in str(head.columns[0]) else {"sep": "\t"}
-        head = read(nrows=100, **options)
+    options = _separator(path)
+    head = read(nrows=100, **options)
     if len(head) > 1 and not any(pd.api.types.is_numeric_dtype(head[c]) for c in head.columns):
         first = [str(v) for v in head.iloc[0]]
         second = [str(v).replace(",", ".") if options.get("decimal") == "," else str(v) for v in head.iloc[1]]
@@ -297,6 +294,24 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     except Exception as exc:  # pandas raises many types for malformed files
         raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
     return {str(c).strip(): np.concatenate(pieces.pop(c)) for c in list(pieces)}  # (as the whole file's: the last)
+
+
+def _separator(path: Path) -> dict:
+    """pandas' options for the file's separator, read off its header line: commas, else
+    semicolons (with a decimal comma when the first rows hold one) or tabs.  (Read by
+    pandas with commas first, a semicolon file's decimal commas split its rows into more
+    fields than its header has, and a units row into fewer: no shape to recover from.)"""
+    try:
+        with open(path, encoding="utf-8", errors="replace") as file:
+            header = file.readline()
+            rows = [file.readline() for _ in range(100)]
+    except OSError as exc:
+        raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
+    if "," in header or not any(sep in header for sep in (";", "\t")):
+        return {}
+    if "\t" in header and ";" not in header:
+        return {"sep": "\t"}
+    return {"sep": ";", "decimal": ","} if any("," in row for row in rows) else {"sep": ";"}
 
 
 def _numeric(text: str) -> bool:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from scipy.interpolate import make_smoothing_spline
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from cvxid.errors import CvxidError
 from cvxid.metrics import noise_level
@@ -117,14 +117,32 @@ whole up to 2^19 samples)."""
 
 
 def _savgol_window(y: np.ndarray, polyorder: int) -> int:
-    sigma = noise_level(y)
+    r"""The rule of :func:`savgol_window`: the smoothing residual :math:`r_L` of a window of
+    :math:`L` samples, divided by :math:`\sqrt{1 - h_L}` (:math:`h_L` the filter's centre
+    weight, the share of a sample's own noise it keeps), is the noise's deviation while the
+    window only averages noise, and grows once it cuts the signal.  The window grows (by
+    a quarter) while that stays within 2 % of the larger of :func:`noise_level` and the
+    median reading so far (this one's included): it stops where the readings leave their
+    plateau, not where one first exceeds the estimate (the shortest windows' readings
+    scatter by a few %).  (:func:`noise_level`, a median, alone scatters by
+    about 3 %: 5 % low, it stopped the rule at 51 samples for 373 on 2 of 40 white-noise
+    records, their velocity error 14 times the median's.)"""
     n = len(y)
     pieces = [y] if n <= PIECES * PIECE else [y[a:a + PIECE] for a in np.linspace(0, n - PIECE, PIECES).astype(int)]
-    best = polyorder + 2 | 1
-    length = best
-    while length < min(p.size for p in pieces) // 4:
+    size = sum(p.size for p in pieces)
+
+    def noise(length):  # the noise's deviation as the window's residual reads it
         square = sum(np.sum((p - savgol_filter(p, length, polyorder, mode="interp")) ** 2) for p in pieces)
-        if np.sqrt(square / sum(p.size for p in pieces)) > 1.02 * sigma:
+        return np.sqrt(square / size / (1 - savgol_coeffs(length, polyorder)[length // 2]))
+
+    sigma, best = noise_level(y), polyorder + 2 | 1
+    if best >= min(p.size for p in pieces) // 4:
+        return best
+    readings = [noise(best)]
+    length = int(best * 1.25) | 1
+    while length < min(p.size for p in pieces) // 4:
+        readings.append(noise(length))
+        if readings[-1] > 1.02 * max(sigma, float(np.median(readings))):
             break
         best = length
         length = int(length * 1.25) | 1
