@@ -29,11 +29,11 @@ HIDDEN = {
 }
 
 
-def experiments(hidden, noise=0.001):
+def experiments(hidden, noise=0.001, gain=1.5):
     coef = {"x'": 0.4, "x": 6.0}
     if HIDDEN[hidden]:
         coef[HIDDEN[hidden][0]] = HIDDEN[hidden][1]
-    system = System(tuple(parse_term(n) for n in coef), np.array(list(coef.values())), 1.0, "x", 1.5, 0.15, 0, "zero")
+    system = System(tuple(parse_term(n) for n in coef), np.array(list(coef.values())), 1.0, "x", gain, 0.15, 0, "zero")
 
     def record(seed, amps, omegas, x0):
         t = np.arange(8001) * 1e-3
@@ -198,6 +198,45 @@ def test_a_wrong_delay_is_named_and_estimated_again():
     assert result.steps[0].test_mse_before >= 1000 * result.steps[0].test_mse_after
     assert result.model.tau == pytest.approx(0.15, abs=0.005)
     assert result.model.physical["x"] == pytest.approx(6.0, rel=0.01)
+
+
+def without_delay(train) -> IdentifiedModel:
+    """x'' + c x' + k x = f, no delay: least squares."""
+    from cvxid.identify.problem import Problem
+    from cvxid.regression.builder import RegressionBuilder
+
+    spec = ModelSpec(Library([parse_term("x'"), parse_term("x")]), nonnegative=("x''",))
+    regression = RegressionBuilder(spec, train, "savgol").at()
+    fit = Problem.from_regression(regression, ("x''",)).refit(np.ones(3, bool))
+    return IdentifiedModel(spec, dict(zip(regression.names, fit.coefficients)))
+
+
+def test_a_missing_fed_back_delay_is_named_added_and_estimated():
+    """A model without a delay of a system that feeds back 1.5 x(t - 0.15) fits it closely
+    (its stiffness and damping absorb b x - b tau x'), and the diagnosis "repaired" the rest
+    with an input delay of 0.85 ms (an outside check): the fed-back delay is a candidate
+    now, and the free run of the test record chooses it over the input delay (measured: tau
+    0.156, gain 1.28, the test equation error 143 times lower; the polish of a run takes the
+    gain to 1.62 and the delay to 0.144)."""
+    train, test = experiments(None)
+    result = refine(without_delay(train), train, test)
+    assert [s.added for s in result.steps] == ["delay"], result.steps
+    dx = result.diagnoses[0]
+    assert dx.ranking.loc["delay", "meaning"] == "a fed-back delay, gain and delay estimated"
+    assert dx.ranking.loc["delay", "free_run_fit"] > dx.ranking.loc["input_delay", "free_run_fit"]
+    assert result.model.tau == pytest.approx(0.15, rel=0.1)
+    assert result.model.spec.delay.gain is None and result.model.physical["gain"] == pytest.approx(1.5, rel=0.25)
+    assert result.steps[0].test_mse_before > 50 * result.steps[0].test_mse_after
+
+
+@pytest.mark.parametrize("hidden", [None, "coulomb"])
+def test_no_delay_is_added_to_a_system_without_one(hidden):
+    """The controls: the same records without the feedback give the model without a delay
+    nothing (no hidden effect) or the friction alone."""
+    train, test = experiments(hidden, gain=0.0)
+    result = refine(without_delay(train), train, test)
+    assert [s.added for s in result.steps] == ([] if hidden is None else [hidden]), result.steps
+    assert result.model.spec.delay is None
 
 
 def test_a_wrong_delay_is_estimated_again_within_two_percent():

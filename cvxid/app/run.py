@@ -383,7 +383,7 @@ def _identify(spec) -> RunResult:
                     lam=best.lam if selects else None, window=rows.window,
                     input_delay=None if input_profile is None else input_profile.as_dict())
     if spec.diagnose is not None:
-        _diagnose(spec, out, rows, test_rows, velocity)
+        rows, test_rows = _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":
         _polish(out)
     _score(out, test_rows)
@@ -438,7 +438,8 @@ def _compare(out: RunResult):
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):
     """Diagnose → add → refit (:func:`~cvxid.diagnosis.refine.refine`, the same loop for
     every :math:`N`), on the run's own transformed data; the library is selected anew beside
-    each added effect by the run's own selection."""
+    each added effect by the run's own selection.  Returns the train and test data's
+    builders of the refined system (new ones when a fed-back delay was added)."""
     settings, fit = spec.diagnose, spec.fit
     steps = settings.max_steps if settings.refine else 0
     selection = Selection(fit.estimator, fit.lambdas, fit.selection, fit.stability) \
@@ -448,8 +449,9 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     system = out.refinement.system
     out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(
         system, out.train, out.test, settings.candidates, velocity, rows.window, builders=(rows, test_rows))
+    rows, test_rows = out.refinement.builders
     if out.refinement.steps and system.spec.exact:
-        out.tau = dict(out.tau, estimate=system.tau, interval=system.info.get("tau_interval"),
+        out.tau = dict(out.tau or {}, estimate=system.tau, interval=system.info.get("tau_interval"),
                        method="profile (after refinement)")
     late = [s.input_delay for s in system.specs.values() if s.input_delay is not None and s.input_delay.free]
     if out.refinement.steps and late:
@@ -457,6 +459,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
     out.system = system
     out.problem = Problem.from_regression(rows.at(system.tau, system.specs), system.spec.nonnegative,
                                           spec.fit.solver, ties=system.ties)
+    return rows, test_rows
 
 
 COUPLED_POLISH = dict(coarse_step=4e-3, max_iterations=100, grid=0, final_iterations=10)

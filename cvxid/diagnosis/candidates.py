@@ -15,7 +15,12 @@ Two names are parameters estimated again, not terms, each shared by every equati
 ``"delay"`` (an exact delay profiled again; scored by the column
 :math:`\partial_\tau\, x(t-\tau) = -\dot x(t-\tau)` in every equation) and
 ``"input_delay"`` (the input's delay estimated; scored by the rate of the input each
-equation receives, :math:`\dot u`).
+equation receives, :math:`\dot u`).  A model of one equation without a delay is offered
+``"delay"`` as a fed-back delay to add, :math:`b\,x(t-\tau)` with its gain and delay
+estimated (:func:`with_feedback_delay`; scored by that column at the delay that explains
+the most, :mod:`cvxid.diagnosis.ranking`): without it a missing feedback was "repaired"
+with a sub-sample input delay (an outside check: 0.85 ms for a feedback of 0.15 s), whose
+rate column stands in for the delay's third-order Taylor term.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import Mapping, Sequence
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
+from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.input_delay import InputDelay, record_bound
 from cvxid.model.library import CATALOGUE, PARAMETERS, coordinate_effect, resolve_term
@@ -53,11 +59,37 @@ def _specs(model: ModelSpec | Mapping[str, ModelSpec]) -> dict[str, ModelSpec]:
 
 def default_candidates(model: ModelSpec | Mapping[str, ModelSpec]) -> list[str]:
     """The catalogue and the spec's own effects minus what the model already has (``delay``:
-    for an exact delay)."""
+    for an exact delay, or one equation without a delay)."""
     specs = _specs(model)
     first = next(iter(specs.values()))
     exact = first.delay is not None and first.delay.exact
-    return [n for n in {**CATALOGUE, **first.effects} if (n != "delay" or exact) and missing(specs, n)]
+    return [n for n in {**CATALOGUE, **first.effects}
+            if (n != "delay" or exact or lacks_delay(specs)) and missing(specs, n)]
+
+
+FEEDBACK_TAU_MAX = 0.5
+"""The longest fed-back delay the ``delay`` candidate searches (the spec's default
+``tau_max``), at most a quarter of the shortest record."""
+
+
+def lacks_delay(model: ModelSpec | Mapping[str, ModelSpec]) -> bool:
+    """Whether ``model`` is one equation without a fed-back delay (the ``delay`` candidate
+    then adds one)."""
+    specs = _specs(model)
+    return len(specs) == 1 and next(iter(specs.values())).delay is None
+
+
+def with_feedback_delay(model: ModelSpec | Mapping[str, ModelSpec], *experiments: Experiment) -> dict[str, ModelSpec]:
+    r"""The one equation of ``model`` with an exact fed-back delay of its own coordinate,
+    :math:`b\,x(t-\tau)`, its gain estimated and :math:`\tau` searched in
+    ``[0, min(FEEDBACK_TAU_MAX, T/4)]`` (:math:`T` the shortest of ``experiments``)."""
+    specs = _specs(model)
+    if not lacks_delay(specs):
+        raise CvxidError("a fed-back delay is added to one equation without one")
+    shortest = min(float(e.time[-1] - e.time[0]) for e in experiments)
+    (label, spec), = specs.items()
+    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=min(FEEDBACK_TAU_MAX, shortest / 4))
+    return {label: replace(spec, delay=delay)}
 
 
 def missing(model: ModelSpec | Mapping[str, ModelSpec], name: str) -> bool:
@@ -112,8 +144,12 @@ def _parameter(specs: dict[str, ModelSpec], name: str) -> Candidate | None:
     spec = next(iter(specs.values()))
     if name == "input_delay":  # (each equation's column is the rate of the input it receives)
         return Candidate(name, InputRate(spec.input), tuple(specs)) if spec.input_delay is None else None
+    if lacks_delay(specs):
+        return Candidate(name, DelayedSignal(spec.coordinate, 0, "a fed-back delay, gain and delay estimated"),
+                         tuple(specs))
     if not (spec.delay is not None and spec.delay.exact):
-        raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact')")
+        raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact') "
+                         "or one equation without a delay (to add one)")
     return Candidate(name, DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1), tuple(specs))
 
 
@@ -129,6 +165,9 @@ def with_candidate(specs: Mapping[str, ModelSpec], candidate: Candidate) -> dict
 
 def with_effect(spec: ModelSpec, name: str) -> ModelSpec:
     """``spec`` with a catalogue effect (or a term) added, its sign constraint included."""
+    if name == "delay" and lacks_delay(spec):
+        raise CvxidError("a fed-back delay is not a term: give the spec one to estimate (with_feedback_delay), or "
+                         "let the diagnosis add it (refine)")
     if name == "delay":
         raise CvxidError("the delay is not added but estimated again: refit the model (refit() profiles tau)")
     if name == "input_delay":

@@ -33,10 +33,14 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates
+from cvxid.diagnosis.candidates import (Candidate, candidates as candidates_of, default_candidates, lacks_delay,
+                                        with_feedback_delay)
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
+from cvxid.identify.profile import profile_delay
+from cvxid.model.equation import ModelSpec
+from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
 
@@ -96,17 +100,27 @@ class Diagnosis:
         return text
 
 
-def builders_for(system: IdentifiedSystem, train: Experiment, test: Experiment | None, velocity: str,
-             window: float | str | None, given=None) -> tuple[SystemBuilder, SystemBuilder | None]:
+def builders_for(specs: dict[str, ModelSpec], train: Experiment, test: Experiment | None, velocity: str,
+                 window: float | str | None, given=None) -> tuple[SystemBuilder, SystemBuilder | None]:
     """The train and test builders passed in (a system's, or one equation's
-    :class:`~cvxid.regression.builder.RegressionBuilder`), or new ones for ``system`` (the
-    test data on the training data's windows)."""
+    :class:`~cvxid.regression.builder.RegressionBuilder`), or new ones for the equations
+    ``specs`` (the test data on the training data's windows)."""
     train_rows, test_rows = (None if b is None else SystemBuilder.of(b) for b in (given or (None, None)))
     if train_rows is None:
-        train_rows = SystemBuilder(system.specs, train, velocity, window)
+        train_rows = SystemBuilder(specs, train, velocity, window)
     if test_rows is None and test is not None:
-        test_rows = SystemBuilder(system.specs, test, velocity, train_rows.window)
+        test_rows = SystemBuilder(specs, test, velocity, train_rows.window)
     return train_rows, test_rows
+
+
+def feedback_builders(specs: dict[str, ModelSpec], train: Experiment, test: Experiment | None, velocity: str,
+                      window: float | str | None) -> tuple[SystemBuilder, SystemBuilder | None]:
+    """The train and test builders of ``specs`` with a fed-back delay added
+    (:func:`~cvxid.diagnosis.candidates.with_feedback_delay`): their rows start where the
+    delay's measured history does, and their windows may differ, so a model without a delay
+    is scored against the candidate on these rows, never across the two."""
+    return builders_for(with_feedback_delay(specs, *[e for e in (train, test) if e is not None]), train, test,
+                        velocity, window)
 
 
 def diagnose(
@@ -117,27 +131,48 @@ def diagnose(
     velocity: str = "savgol",
     window: float | str | None = "auto",
     builders: tuple[SystemBuilder, SystemBuilder | None] | None = None,
+    fed_builders: tuple[SystemBuilder, SystemBuilder | None] | None = None,
 ) -> Diagnosis:
     """Rank ``candidates`` (catalogue names or term names; by default the catalogue and the
     spec's own effects) missing from ``model``, one equation or a system of several
     (``velocity`` and restart ``window`` as in
     :class:`~cvxid.regression.builder.RegressionBuilder`; ``builders`` of the train and test
-    data may be passed to reuse their columns)."""
+    data may be passed to reuse their columns).
+
+    A model without a delay offered the ``delay`` candidate (a fed-back delay to add) is
+    scored with every candidate on the rows of the model with that delay
+    (:func:`feedback_builders`, or ``fed_builders``), at the delay whose column, beside
+    the model's terms, fits the training rows best (the delay profile)."""
     system = IdentifiedSystem.of(model)
     spec = system.spec
     found = candidates_of(system.specs, candidates if candidates is not None else default_candidates(system.specs))
     if not found:
         raise CvxidError("no candidate effect is missing from the model: each one named is in it already "
                          "([diagnose] candidates in a spec); name others, or leave them out for the whole catalogue")
+    fed = "delay" in found and lacks_delay(system.specs)
+    if fed:
+        train_rows, test_rows = fed_builders or feedback_builders(system.specs, train, test, velocity, window)
+        specs = {label: replace(s, delay=train_rows.delay) for label, s in system.specs.items()}
+    else:
+        specs = system.specs
+        train_rows, test_rows = builders_for(system.specs, train, test, velocity, window, builders)
     # the candidates are scored as candidates, a linear one too (kept, it would be in every refit)
     extended = {label: replace(s, library=s.library + _new_terms(s, found.values(), label), keep_linear=False)
-                for label, s in system.specs.items()}
-    train_rows, test_rows = builders_for(system, train, test, velocity, window, builders)
-    reg = train_rows.at(system.tau, extended)
-    names = list(reg.names)
+                for label, s in specs.items()}
+    names = list(SystemSpec(extended, system.ties).column_names)
     coefficients = system.coefficients
     used = [names.index(n) for n in spec.column_names if coefficients.get(n, 0.0) != 0.0]
     own = {name: [names.index(spec.column(label, c.term.name)) for label in c.equations] for name, c in found.items()}
+    tau = system.tau
+    if fed:  # the delay whose column explains the most beside the model's terms (those alone: a cheaper profile)
+        term = found["delay"].term
+        alone = {label: replace(s, library=[t for t in s.library if coefficients.get(spec.column(label, t.name), 0.0)]
+                                + [term], keep_linear=False) for label, s in specs.items()}
+        tau = profile_delay(train_rows, nonnegative=spec.nonnegative, model=alone, ties=system.ties,
+                            interval=False).estimate
+    reg = train_rows.at(tau, extended)
+    if fed:  # (the delayed column of an estimated gain is never penalised in a model; here it is a candidate)
+        reg = replace(reg, penalties=np.where(np.isin(np.arange(len(names)), own["delay"]), 1.0, reg.penalties))
     scale = np.sqrt(np.mean(reg.P**2, axis=0))
     P, p = reg.P / scale, reg.p / np.sqrt(np.mean(reg.p**2))
     Q, _ = np.linalg.qr(P[:, used])
@@ -147,7 +182,7 @@ def diagnose(
         ortho[name], err[name] = _explained(P[:, columns], Q, r)
     drops = {}
     if test_rows is not None:
-        treg = test_rows.at(system.tau, extended)
+        treg = test_rows.at(tau, extended)
         with warnings.catch_warnings():
             # a candidate may repeat a model column (the delay's derivative at tau = 0 is x'):
             # its ERR and its group say so, the rank warning would only alarm

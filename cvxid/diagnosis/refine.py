@@ -24,9 +24,9 @@ import pandas as pd
 
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
-from cvxid.diagnosis.candidates import default_candidates, missing, with_candidate, with_input_delay
+from cvxid.diagnosis.candidates import default_candidates, lacks_delay, missing, with_candidate, with_input_delay
 from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
-from cvxid.diagnosis.ranking import Diagnosis, builders_for, diagnose
+from cvxid.diagnosis.ranking import Diagnosis, builders_for, diagnose, feedback_builders
 from cvxid.diagnosis.residuals import residuals
 from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
@@ -89,6 +89,9 @@ class Refinement:
     lack of candidates or steps): ``effect``, ``validation_ratio``, whether the refitted
     model's test ``errors_fall`` (equation and simulation), and its ``inclusion``
     (null when an earlier condition failed first)."""
+    builders: tuple | None = None
+    """The train and test data's builders of :attr:`system` (with the fed-back delay the
+    loop added, when it added one)."""
 
     def __post_init__(self):
         self.system = IdentifiedSystem.of(self.system)
@@ -223,7 +226,8 @@ def refine(
     ``selection`` selects the library anew beside each effect (when there is one to select
     from)."""
     system = start = IdentifiedSystem.of(model)
-    train_rows, test_rows = builders_for(system, train, test, velocity, window, builders)
+    train_rows, test_rows = builders_for(system.specs, train, test, velocity, window, builders)
+    fed_rows = None  # the builders with a fed-back delay added, made when the delay is a candidate
     steps, diagnoses, comparisons, stopped = [], [], [], None
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
@@ -231,29 +235,37 @@ def refine(
         pool = [c for c in pool if missing(system.specs, c)]
         if not pool:
             break
-        dx = diagnose(system, train, test, pool, velocity, window, (train_rows, test_rows))
+        if "delay" in pool and lacks_delay(system.specs) and fed_rows is None:
+            fed_rows = feedback_builders(system.specs, train, test, velocity, window)
+        dx = diagnose(system, train, test, pool, velocity, window, (train_rows, test_rows), fed_rows)
         diagnoses.append(dx)
         best = dx.top
         stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"])
         if not dx.ranking.loc[best, "validation_ratio"] > 1:  # (NaN: no evidence either)
             break
-        # (the model's test error and free run: those of the last accepted step, else computed once)
-        before = steps[-1].test_mse_after if steps else _test_mse(system, test_rows)
+        lacking = lacks_delay(system.specs)
+
+        def rows_for(name):  # a fed-back delay to add is scored on its own rows, the model without it too
+            return fed_rows if name == "delay" and lacking else (train_rows, test_rows)
+
         old = comparisons[-1] if comparisons else compare_system(system, test, initial="record")
         group = next(g for g in dx.groups if best in g)
         # the equation error cannot tell a collinear group's members apart: of those that
         # lower it, the free run of the test record chooses
-        rivals = [best] if dx.candidates[best].reestimated else [
-            g for g in group if not dx.candidates[g].reestimated and dx.ranking.loc[g, "validation_ratio"] > 1]
-        tried = {g: _with_candidate(system, g, dx, train, train_rows, test_rows, selection) for g in rivals}
+        # (terms against terms, parameters against parameters: an input delay against a fed-back delay to add)
+        rivals = [g for g in group if dx.candidates[g].reestimated == dx.candidates[best].reestimated
+                  and (g == best or dx.ranking.loc[g, "validation_ratio"] > 1)]
+        tried = {g: _with_candidate(system, g, dx, train, *rows_for(g), selection) for g in rivals}
         compared = {g: compare_system(m, test, initial="record") for g, m in tried.items()}
         if len(rivals) > 1:
             diagnoses[-1] = dx = dx.decided({g: mean_fit(c) for g, c in compared.items()})
-        best = dx.top
+        best, rows = dx.top, rows_for(dx.top)
+        # (the model's test error: that of the last accepted step on the same rows, else computed)
+        before = steps[-1].test_mse_after if steps and rows[1] is test_rows else _test_mse(system, rows[1])
         new, new_cmp = tried[best], compared[best]
-        after = _test_mse(new, test_rows)
+        after = _test_mse(new, rows[1])
         falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
-        probability = _inclusion(system, new, best, dx, train_rows, test_rows) if falls else float("nan")
+        probability = _inclusion(system, new, best, dx, *rows) if falls else float("nan")
         stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
         if not accepted(probability):
             break
@@ -263,8 +275,8 @@ def refine(
                                 mean_fit(old), mean_fit(new_cmp), new.tau, () if joined.reestimated else tuple(
                                     system.spec.column(label, joined.term.name) for label in joined.equations)))
         comparisons += [new_cmp] if comparisons else [old, new_cmp]
-        system = new
-    return Refinement(system, steps, diagnoses, comparisons, start, stopped)
+        system, (train_rows, test_rows) = new, rows
+    return Refinement(system, steps, diagnoses, comparisons, start, stopped, (train_rows, test_rows))
 
 
 def _inclusion(before: IdentifiedSystem, after: IdentifiedSystem, name: str, dx: Diagnosis,
@@ -275,7 +287,7 @@ def _inclusion(before: IdentifiedSystem, after: IdentifiedSystem, name: str, dx:
     of time of every equation).  A change of delay is tested where it would leave: its
     column beside ``before``'s terms, at ``before``'s delay."""
     candidate = dx.candidates[name]
-    if candidate.reestimated:
+    if candidate.reestimated and not (name == "delay" and lacks_delay(before.specs)):  # (an added delay: a term)
         model = before
         specs = {label: replace(s, library=s.library + [candidate.term]) if label in candidate.equations else s
                  for label, s in before.specs.items()}
@@ -300,6 +312,10 @@ def _with_candidate(system: IdentifiedSystem, name: str, dx: Diagnosis, train: E
     support = [n for n, c in system.coefficients.items() if c != 0.0]
     lam = next(iter(system.models.values())).lam
     spec = system.spec
+    if name == "delay" and lacks_delay(system.specs):  # a fed-back delay: added, its gain and delay estimated
+        fed = SystemSpec({label: replace(s, delay=train_rows.delay) for label, s in system.specs.items()}, system.ties)
+        delayed = [fed.column(label, dx.candidates[name].term.name) for label in fed.equations]
+        return refit_system(fed, train_rows, support + delayed, None, lam)
     if name == "delay":  # a wrong delay: estimate it again on the same terms
         return refit_system(spec, train_rows, support, None, lam)
     if name == "input_delay":  # the input acts late: estimate its delay on the same terms
@@ -337,6 +353,13 @@ def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> floa
 
 
 def _test_mse(system: IdentifiedSystem, test_rows: SystemBuilder) -> float:
-    reg = test_rows.at(system.tau, system.specs)
+    """The test rows' equation-error MSE of ``system``; on the rows of a model with a
+    fed-back delay added (``test_rows`` built for it), a model without one is that model
+    with a gain of 0 (at the profile's least delay: the rows do not depend on it then)."""
+    specs = system.specs
+    if lacks_delay(specs) and test_rows.delay is not None:
+        specs = {label: replace(s, delay=test_rows.delay) for label, s in specs.items()}
+    reg = test_rows.at(system.tau if system.tau is not None or test_rows.delay is None else test_rows.delay.tau_min,
+                       specs)
     coefficients = system.coefficients
     return reg.mse(np.array([coefficients.get(n, 0.0) for n in reg.names]))

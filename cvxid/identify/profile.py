@@ -69,17 +69,19 @@ def profiled_tau(builder) -> float | None:
 
 
 def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level: float = 0.95, model=None,
-                  ties=()) -> DelayProfile:
+                  ties=(), interval: bool = True) -> DelayProfile:
     """Profile the least-squares optimal value over the delay.
 
     ``builder`` makes the regression at any delay (a
     :class:`~cvxid.regression.builder.RegressionBuilder` for ``model``, by default its own,
     or a :class:`~cvxid.regression.builder.SystemBuilder`); ``support`` is a boolean mask
     over the columns (all by default), ``nonnegative`` and ``ties`` the constraints kept.
+    ``interval = False``: the best delay alone (the interval's bisections cost as much again
+    as the grid; its interval is NaN).
     """
     delay = builder.delay
     return _profile(lambda tau: builder.at(tau, model), delay.tau_min, delay.tau_max, support, nonnegative, grid,
-                    level, ties)
+                    level, ties, interval=interval)
 
 
 def profile_input_delay(builder, model, tau: float | None = None, support=None, nonnegative=(), grid: int = GRID,
@@ -113,9 +115,10 @@ def input_delay_bounds(model) -> tuple[float, float]:
 
 
 def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: int, level: float, ties,
-             method: str = "profile") -> DelayProfile:
+             method: str = "profile", interval: bool = True) -> DelayProfile:
     """The profile of the least-squares optimal value over a delay in ``[lo, hi]``, given
-    the regression at any delay (``regression_at``)."""
+    the regression at any delay (``regression_at``); without its ``interval`` (NaN) when
+    only the best delay is wanted."""
     cache: dict[float, float] = {}
 
     def regression(tau: float):
@@ -147,10 +150,11 @@ def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: in
     reg, reduced, scaled = fit(tau)
     n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
     bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
-    interval = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
+    bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus)) if interval else \
+        (np.nan, np.nan)
     order = np.argsort(list(cache))
     all_taus = np.array(list(cache))[order]
-    return DelayProfile(all_taus, np.array(list(cache.values()))[order], tau, interval, n_eff, method)
+    return DelayProfile(all_taus, np.array(list(cache.values()))[order], tau, bounds, n_eff, method)
 
 
 def _crossing(value, tau, edge, bound, grid) -> float:

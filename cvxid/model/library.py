@@ -119,7 +119,8 @@ register_effect("cubic_stiffness", "cubic (hardening) stiffness, x^3", lambda c:
 register_effect("offset", "constant force (offset, gravity, bias)", lambda c: Constant())
 register_effect(
     "delay",
-    "a change of the delay tau: the delayed signal's time derivative (exact-delay models)",
+    "a change of the delay tau: the delayed signal's time derivative (exact-delay models); a fed-back delay "
+    "x(t - tau) added, gain and delay estimated (one equation without a delay)",
     lambda c: DelayedSignal(c, 1),
 )
 register_effect(

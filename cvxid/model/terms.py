@@ -187,11 +187,12 @@ class DelayedSignal(Term):
     :math:`q`.
     """
 
-    def __init__(self, coordinate: str, derivative: int = 0):
+    def __init__(self, coordinate: str, derivative: int = 0, meaning: str | None = None):
         self.coordinate = coordinate
         self.derivative = int(derivative)
         self.name = f"{coordinate}{chr(39) * self.derivative}(t-tau)"
-        self.meaning = "delayed feedback" if self.derivative == 0 else "a change of the delay (its time derivative)"
+        self.meaning = meaning or ("delayed feedback" if self.derivative == 0 else
+                                   "a change of the delay (its time derivative)")
 
     @property
     def symbol(self) -> str:
