@@ -272,8 +272,9 @@ def refine(
         stopped = None
         joined = dx.candidates[best]
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
-                                mean_fit(old), mean_fit(new_cmp), new.tau, () if joined.reestimated else tuple(
-                                    system.spec.column(label, joined.term.name) for label in joined.equations)))
+                                mean_fit(old), mean_fit(new_cmp), new.tau,
+                                () if joined.reestimated and not (best == "delay" and lacking) else tuple(  # (added)
+                                    new.spec.column(label, joined.term.name) for label in joined.equations)))
         comparisons += [new_cmp] if comparisons else [old, new_cmp]
         system, (train_rows, test_rows) = new, rows
     return Refinement(system, steps, diagnoses, comparisons, start, stopped, (train_rows, test_rows))
