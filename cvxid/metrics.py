@@ -107,19 +107,25 @@ smallest for a record to count as quantised."""
 
 def quantisation_step(y: np.ndarray) -> float:
     r"""The step :math:`q` a quantised record's values are rounded to (an encoder's count,
-    an ADC's least bit, a file's last printed digit), else 0: the smallest nonzero change
-    between consecutive samples, when :data:`QUANTISED_SHARE` of the nonzero changes are
-    whole multiples of it (to 1 % of :math:`q`).  Rounding to :math:`q` adds an error of
-    standard deviation :math:`q/\sqrt{12}` when the signal crosses several levels between
-    samples, and a slower staircase when it does not."""
+    an ADC's least bit, a file's last printed digit), else 0: the largest :math:`c/k`
+    (:math:`k \le 10`, :math:`c` one of the smallest changes between consecutive samples
+    that make up at least 1 % of the nonzero ones) of which :data:`QUANTISED_SHARE` of the
+    nonzero changes are whole multiples (to 1 % of the step).  A few off-grid samples (an
+    interpolated or repaired one) neither set the step nor hide it.  Rounding to :math:`q`
+    adds an error of standard deviation :math:`q/\sqrt{12}` when the signal crosses several
+    levels between samples, and a slower staircase when it does not."""
     d = np.abs(np.diff(np.asarray(y[:QUANTISATION_SAMPLES], float)))
     d = d[(d > 0) & np.isfinite(d)]
     if d.size < 10:
         return 0.0
-    q = float(d.min())
-    steps = d / q
-    whole = np.abs(steps - np.round(steps)) <= 0.01
-    return q if np.mean(whole) >= QUANTISED_SHARE else 0.0
+    values, counts = np.unique(d, return_counts=True)
+    frequent = values[counts >= 0.01 * d.size][:3]
+    for c in frequent:
+        for k in range(1, 11):
+            steps = d / (c / k)
+            if np.mean(np.abs(steps - np.round(steps)) <= 0.01) >= QUANTISED_SHARE:
+                return float(c / k)
+    return 0.0
 
 
 def noise_ceiling_percent(y: np.ndarray) -> float:

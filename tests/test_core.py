@@ -332,3 +332,20 @@ def test_a_long_records_spectrum_is_averaged_a_chunk_at_a_time_with_the_same_seg
     f, pxx = welch(y, fs=2.0, nperseg=SEGMENT)
     f_chunked, pxx_chunked = _welch(y, 2.0, SEGMENT)
     assert np.array_equal(f, f_chunked) and np.allclose(pxx_chunked, pxx, rtol=1e-12, atol=0)
+
+
+def test_one_off_grid_sample_neither_sets_nor_hides_the_quantisation_step():
+    """A staircase of steps 0.01 with one sample repaired off the grid (its neighbours'
+    mean): the step is still 0.01 and the velocity window the clean record's (a stranger's
+    review: the smallest change set the step to 0.0013, the share test failed, and the
+    noise read 0 again: a window of 7 samples for 373)."""
+    from cvxid.metrics import noise_level, quantisation_step
+    from cvxid.regression.velocity import savgol_window
+
+    measured = SMOOTH_X + np.random.default_rng(3).normal(0, 0.001, SMOOTH_X.size)
+    rounded = np.round(measured / 0.01) * 0.01
+    repaired = rounded.copy()
+    repaired[4000] = 0.5 * (rounded[3999] + rounded[4001]) + 0.0013
+    assert quantisation_step(repaired) == pytest.approx(0.01, rel=1e-6)
+    assert noise_level(repaired) == pytest.approx(noise_level(rounded), rel=0.01)
+    assert savgol_window(repaired) == savgol_window(rounded) > 100

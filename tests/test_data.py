@@ -208,3 +208,29 @@ def test_a_large_csv_is_read_in_chunks_to_the_same_columns(tmp_path, monkeypatch
         assert any("read as units" in str(w.message) for w in said) == (name == "units.csv")
         assert list(chunked) == ["t", "x", "f"] and all(np.array_equal(chunked[c], whole[c]) for c in whole)
     assert whole["x"].size == 5000 and whole["x"][100] == pytest.approx(np.sin(2.0), abs=1e-6)
+
+
+def test_a_csv_separator_is_the_one_that_splits_every_row_alike(tmp_path):
+    """A stranger's files: a semicolon file whose first 150 rows hold only whole numbers
+    (time in samples, a record at rest: the decimal comma comes later), a comma inside a
+    column's name under semicolons or tabs, a byte-order mark, a blank first line.  Each
+    read to the same numbers (the first failed on the decimal comma, the second and third
+    split the header wrongly, the last was an error)."""
+    from cvxid.data.experiment import _csv_columns
+
+    x = np.r_[np.zeros(150), 0.5 * np.sin(np.arange(150) / 9.0)]
+    rows = [(i, v, -v) for i, v in enumerate(x)]
+
+    def text(sep, decimal=".", header="t{s}x{s}force, N"):
+        body = [sep.join(f"{c:.4f}".rstrip("0").rstrip(".") if c != 0 else "0" for c in r) for r in rows]
+        return header.format(s=sep) + "\n" + "\n".join(b.replace(".", decimal) for b in body) + "\n"
+
+    files = {"late_comma.csv": text(";", ",", "t;x;force"), "semicolon_name.csv": text(";", ","),
+             "tab_name.csv": text("\t"), "bom.csv": "\ufeff" + text(";", ",", "t;x;force"),
+             "blank.csv": "\n" + text(",", ".", "t,x,force")}
+    for name, content in files.items():
+        (tmp_path / name).write_text(content, encoding="utf-8")
+        columns = _csv_columns(tmp_path / name)
+        force = "force, N" if "name" in name else "force"
+        assert list(columns) == ["t", "x", force], (name, list(columns))
+        assert np.allclose(columns["x"], np.round(x, 4)) and np.allclose(columns[force], -np.round(x, 4)), name

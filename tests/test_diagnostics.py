@@ -322,3 +322,30 @@ def test_a_candidate_the_model_spans_explains_nothing():
     assert err == 0.0 and not g.any()
     both = np.column_stack([inside, rng.standard_normal(200)])
     assert 0 < _explained(both, Q, r)[1] < 1  # the other column still counts
+
+
+def test_the_fed_back_delay_is_left_out_with_a_word_where_no_delay_fits_the_records():
+    """Records timed in milliseconds (a sample step of 1, longer than the delays searched)
+    and records cut by gaps into stretches of 0.35 s: the candidate was offered by default
+    and the diagnosis stopped with a builder's error (a stranger's review).  Now the first
+    leaves it out, saying why, and the second searches the delay up to a quarter of a
+    stretch."""
+    train, test = experiments(None, gain=0.0)
+
+    def scaled(e):
+        return Experiment(e.time * 1000, {"x": e.output("x")}, {"f": e.input("f")}, e.name)
+
+    with pytest.warns(CvxidWarning, match="leaves out the fed-back delay: a fed-back delay of up to 0.5 s spans fewer "
+                                          "than 5 samples of 1 s"):
+        result = refine(without_delay(scaled(train)), scaled(train), scaled(test))
+    assert all(s.added != "delay" for s in result.steps)
+
+    def gappy(e):
+        x = e.output("x").copy()
+        x[350::700] = np.nan
+        return Experiment(e.time, {"x": x}, {"f": e.input("f")}, e.name, gaps=True)
+
+    train, test = experiments(None)
+    result = refine(without_delay(gappy(train)), gappy(train), gappy(test))
+    assert result.steps[0].added == "delay"  # (its delay at the stretches' bound: 0.087 for 0.15)
+    assert result.model.spec.delay.tau_max == pytest.approx(0.348 / 4, rel=0.01)

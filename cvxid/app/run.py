@@ -85,6 +85,7 @@ def _warn_confounded_gain(out: RunResult) -> None:
       :math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`, and the gain, the stiffness,
       the damping and the delay trade along a valley of the simulation error."""
     interval = (out.tau or {}).get("interval")
+    note = _added_delay_note(out)
     for model in out.system.models.values():
         spec = model.spec
         signal = spec.confounded_signal
@@ -99,15 +100,15 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"and the damping) are most likely a near-collinear fit of {signal} and {signal}(t - tau), unless the "
                 "system's stiffness and feedback do nearly cancel. Give the gain "
                 "([model.delay] gain = …), or let the selection weigh the stiffness (a library of candidate terms, "
-                f"as cvxid init writes, penalises the {signal} that the gain trades with, where a listed one is not)",
-                CvxidWarning, stacklevel=2)
+                f"as cvxid init writes, penalises the {signal} that the gain trades with, where a listed one is not)"
+                + note, CvxidWarning, stacklevel=2)
         elif interval and interval[0] <= 0:
             warnings.warn(
                 f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
                 f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
                 f"separately; {determined}. Give the gain ([model.delay] gain = …), or remove [model.delay] if the "
-                "loop has no delay", CvxidWarning, stacklevel=2)
+                "loop has no delay" + note, CvxidWarning, stacklevel=2)
         elif out.polish is not None and _trading(out.polish):
             low, high = out.polish.interval("gain")
             k_range = (f"{name} ({physical[name]:.4g}, 95 % interval " + " … ".join(
@@ -117,8 +118,8 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"the feedback gain ({physical['gain']:.4g}, 95 % interval {low:.4g} … {high:.4g}) is not "
                 f"determined apart from {k_range}: over the delay's interval they "
                 f"trade, with the damping (b x(t - tau) = b x - b tau x' + ...); {determined}. Give the gain "
-                "([model.delay] gain = …) if it is known, or a record whose forcing reaches higher frequencies",
-                CvxidWarning, stacklevel=2)
+                "([model.delay] gain = …) if it is known, or a record whose forcing reaches higher frequencies"
+                + note, CvxidWarning, stacklevel=2)
 
 
 def _trading(polish) -> tuple[str, ...]:
@@ -145,7 +146,8 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     may be shorter, and at 0 a damping can stand in for a short delay
     (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`); an interval over
     :data:`UNDETERMINED` of the range is a flat profile.  The other parameters' standard
-    errors hold at that delay only."""
+    errors hold at that delay only.  A delay the diagnosis added is said to be one (the
+    spec has no ``[model.delay]`` to change)."""
     estimate = (out.tau or {}).get("estimate")
     spec = next(iter(out.system.models.values())).spec
     delay = spec.delay
@@ -156,35 +158,48 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
+    text = None
     if estimate >= delay.tau_max - tolerance and said:
         pass  # (the gain's warning says why the delay may lie anywhere in its range)
     elif estimate >= delay.tau_max - tolerance and gain is not None and gain[0] <= 0 <= gain[1]:
-        warnings.warn(
+        text = (
             f"the delay tau = {estimate:.4g} s is at the top of its search range and the feedback gain's 95 % "
             f"interval ({gain[0]:.4g} … {gain[1]:.4g}) contains 0: the data show no fed-back signal to delay; remove "
-            "[model.delay] (or give its gain if the loop is known to feed back)", CvxidWarning, stacklevel=2)
+            "[model.delay] (or give its gain if the loop is known to feed back)")
     elif estimate >= delay.tau_max - tolerance:
-        warnings.warn(
+        text = (
             f"the delay tau = {estimate:.4g} s is at the top of its search range (tau_max = {delay.tau_max:g} s): the "
-            "true delay may be longer; raise [model.delay] tau_max", CvxidWarning, stacklevel=2)
+            "true delay may be longer; raise [model.delay] tau_max")
     elif estimate <= delay.tau_min + tolerance and delay.tau_min > 0:
-        warnings.warn(
+        text = (
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
-            "the true delay may be shorter; lower [model.delay] tau_min", CvxidWarning, stacklevel=2)
+            "the true delay may be shorter; lower [model.delay] tau_min")
     elif estimate <= tolerance and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
-        warnings.warn(
+        text = (
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
             "other parameters' standard errors hold at tau = 0 only. Give the delay a floor ([model.delay] tau_min) "
-            "if the loop is known to be late, or a longer, richer record", CvxidWarning, stacklevel=2)
+            "if the loop is known to be late, or a longer, richer record")
     elif _spans_range(interval, delay) and not said:
-        warnings.warn(
+        text = (
             f"the delay is not determined by these data: its 95 % interval {interval[0]:.4g} … {interval[1]:.4g} s "
             f"spans most of the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} "
             "s is one point of a flat profile (see delay_profile.png) and the other parameters hold at that delay "
             "only. " + ("Give the gain if it is known ([model.delay] gain), a" if delay.gain is None else "A") +
-            " longer record or one whose forcing reaches the frequencies where the delay shifts the phase",
-            CvxidWarning, stacklevel=2)
+            " longer record or one whose forcing reaches the frequencies where the delay shifts the phase")
+    if text is not None:
+        warnings.warn(text + _added_delay_note(out), CvxidWarning, stacklevel=2)
+
+
+def _added_delay_note(out: RunResult) -> str:
+    """For the warnings about a delay: that the diagnosis added it (its spec has no
+    ``[model.delay]`` to change), else nothing."""
+    start = out.refinement.start if out.refinement is not None else None
+    if start is None or all(s.delay is not None for s in start.specs.values()):
+        return ""
+    delay = next(iter(out.system.models.values())).spec.delay
+    return (f" (this delay was added by the diagnosis, searched in [0, {delay.tau_max:g}] s: to set its range or gain, "
+            "write it into the spec as a [model.delay] table)")
 
 
 UNDETERMINED = 0.5

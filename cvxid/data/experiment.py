@@ -7,6 +7,9 @@ Everything is validated on construction, so later stages can trust the arrays.
 
 from __future__ import annotations
 
+import csv
+import re
+
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -263,8 +266,9 @@ CSV_CHUNK = 1 << 20
 
 def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     """The columns of a CSV file with a header row: separated by commas, or by semicolons
-    (then a decimal comma is read too) or tabs; a row of units under the header (text in
-    every column) is skipped with a warning.  The format is read off the first rows."""
+    (with a decimal comma or point) or tabs (:func:`_separator`); a row of units under the
+    header (text in every column) is skipped with a warning.  The format is read off the
+    first rows."""
     import pandas as pd
 
     def read(**options):
@@ -273,7 +277,7 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         except Exception as exc:  # pandas raises many types for malformed files
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
-    options = _separator(path)
+    options = {"encoding": "utf-8-sig", **_separator(path)}  # (a byte-order mark is not the first name's)
     head = read(nrows=100, **options)
     if len(head) > 1 and not any(pd.api.types.is_numeric_dtype(head[c]) for c in head.columns):
         first = [str(v) for v in head.iloc[0]]
@@ -297,21 +301,34 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
 
 
 def _separator(path: Path) -> dict:
-    """pandas' options for the file's separator, read off its header line: commas, else
-    semicolons (with a decimal comma when the first rows hold one) or tabs.  (Read by
-    pandas with commas first, a semicolon file's decimal commas split its rows into more
-    fields than its header has, and a units row into fewer: no shape to recover from.)"""
+    """pandas' options for the file's separator: of commas, semicolons and tabs, the one
+    that splits the header line and the first data rows into the same number of fields
+    (more than one), commas first; with semicolons a decimal comma unless the first rows
+    hold decimal points and no decimal comma (a spreadsheet writes ``0``, not ``0,000``).
+    (Read by pandas with commas first, a semicolon file's decimal commas split its rows
+    into more fields than its header has, and a units row into fewer: no shape to recover
+    from.)  Blank lines before the header are skipped."""
     try:
-        with open(path, encoding="utf-8", errors="replace") as file:
-            header = file.readline()
-            rows = [file.readline() for _ in range(100)]
+        with open(path, encoding="utf-8-sig", errors="replace") as file:
+            lines = [line for line in (file.readline() for _ in range(1000)) if line.strip()][:201]
     except OSError as exc:
         raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
-    if "," in header or not any(sep in header for sep in (";", "\t")):
+    if not lines:
         return {}
-    if "\t" in header and ";" not in header:
-        return {"sep": "\t"}
-    return {"sep": ";", "decimal": ","} if any("," in row for row in rows) else {"sep": ";"}
+    header, rows = lines[0], lines[1:] or lines[:1]
+
+    def fields(line, sep):
+        return len(next(csv.reader([line], delimiter=sep)))
+
+    for sep in (",", ";", "\t"):
+        width = fields(header, sep)
+        if width > 1 and all(fields(row, sep) == width for row in rows[-100:]):
+            if sep != ";":
+                return {} if sep == "," else {"sep": sep}
+            text = "".join(rows)
+            point = re.search(r"\d\.\d", text) is not None and re.search(r"\d,\d", text) is None
+            return {"sep": ";"} if point else {"sep": ";", "decimal": ","}
+    return {"sep": ";", "decimal": ","} if ";" in header else {"sep": "\t"} if "\t" in header else {}
 
 
 def _numeric(text: str) -> bool:

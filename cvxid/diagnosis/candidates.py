@@ -69,7 +69,9 @@ def default_candidates(model: ModelSpec | Mapping[str, ModelSpec]) -> list[str]:
 
 FEEDBACK_TAU_MAX = 0.5
 """The longest fed-back delay the ``delay`` candidate searches (the spec's default
-``tau_max``), at most a quarter of the shortest record."""
+``tau_max``), at most a quarter of the shortest gap-free stretch of the records."""
+FEEDBACK_MIN_SAMPLES = 5
+"""The fewest sample steps the ``delay`` candidate's search range must span to be offered."""
 
 
 def lacks_delay(model: ModelSpec | Mapping[str, ModelSpec]) -> bool:
@@ -79,16 +81,29 @@ def lacks_delay(model: ModelSpec | Mapping[str, ModelSpec]) -> bool:
     return len(specs) == 1 and next(iter(specs.values())).delay is None
 
 
+def feedback_bound(*experiments: Experiment) -> float:
+    """The ``delay`` candidate's ``tau_max``: :data:`FEEDBACK_TAU_MAX`, at most a quarter of
+    the shortest gap-free stretch of ``experiments`` (the measured history of every row);
+    an error when that spans fewer than :data:`FEEDBACK_MIN_SAMPLES` samples (a record
+    sampled as slowly as the delays searched, or cut short by gaps)."""
+    stretches = [s for e in experiments for s in e.segments()]
+    bound = min(FEEDBACK_TAU_MAX, min(s.duration for s in stretches) / 4)
+    step = max(s.dt for s in stretches)
+    if bound < FEEDBACK_MIN_SAMPLES * step:
+        raise CvxidError(f"a fed-back delay of up to {bound:.3g} s spans fewer than {FEEDBACK_MIN_SAMPLES} samples "
+                         f"of {step:.3g} s: name it in the spec ([model.delay]) with its own range to have it")
+    return bound
+
+
 def with_feedback_delay(model: ModelSpec | Mapping[str, ModelSpec], *experiments: Experiment) -> dict[str, ModelSpec]:
     r"""The one equation of ``model`` with an exact fed-back delay of its own coordinate,
     :math:`b\,x(t-\tau)`, its gain estimated and :math:`\tau` searched in
-    ``[0, min(FEEDBACK_TAU_MAX, T/4)]`` (:math:`T` the shortest of ``experiments``)."""
+    ``[0, feedback_bound(experiments)]``."""
     specs = _specs(model)
     if not lacks_delay(specs):
         raise CvxidError("a fed-back delay is added to one equation without one")
-    shortest = min(float(e.time[-1] - e.time[0]) for e in experiments)
     (label, spec), = specs.items()
-    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=min(FEEDBACK_TAU_MAX, shortest / 4))
+    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=feedback_bound(*experiments))
     return {label: replace(spec, delay=delay)}
 
 

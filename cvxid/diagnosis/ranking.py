@@ -150,8 +150,18 @@ def diagnose(
         raise CvxidError("no candidate effect is missing from the model: each one named is in it already "
                          "([diagnose] candidates in a spec); name others, or leave them out for the whole catalogue")
     fed = "delay" in found and lacks_delay(system.specs)
+    if fed and fed_builders is None:
+        given = SystemBuilder.of(builders[0]).window if builders is not None and builders[0] is not None else window
+        try:
+            fed_builders = feedback_builders(system.specs, train, test, velocity, given)
+        except CvxidError as exc:
+            warnings.warn(f"the diagnosis leaves out the fed-back delay: {exc}", CvxidWarning, stacklevel=2)
+            found.pop("delay")
+            fed = False
+            if not found:
+                raise CvxidError("no candidate effect is left to rank (the fed-back delay was left out)") from None
     if fed:
-        train_rows, test_rows = fed_builders or feedback_builders(system.specs, train, test, velocity, window)
+        train_rows, test_rows = fed_builders
         specs = {label: replace(s, delay=train_rows.delay) for label, s in system.specs.items()}
     else:
         specs = system.specs
@@ -165,9 +175,8 @@ def diagnose(
     own = {name: [names.index(spec.column(label, c.term.name)) for label in c.equations] for name, c in found.items()}
     tau = system.tau
     if fed:  # the delay whose column explains the most beside the model's terms (those alone: a cheaper profile)
-        term = found["delay"].term
-        alone = {label: replace(s, library=[t for t in s.library if coefficients.get(spec.column(label, t.name), 0.0)]
-                                + [term], keep_linear=False) for label, s in specs.items()}
+        alone = {label: replace(s, library=[t for t in s.library if coefficients.get(spec.column(label, t.name), 0.0)],
+                                keep_linear=False) for label, s in specs.items()}  # (and its delayed column)
         tau = profile_delay(train_rows, nonnegative=spec.nonnegative, model=alone, ties=system.ties,
                             interval=False).estimate
     reg = train_rows.at(tau, extended)

@@ -16,6 +16,7 @@ quadratic from a cubic damping, a simulation can.
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 from typing import Sequence
 
@@ -28,7 +29,7 @@ from cvxid.diagnosis.candidates import default_candidates, lacks_delay, missing,
 from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
 from cvxid.diagnosis.ranking import Diagnosis, builders_for, diagnose, feedback_builders
 from cvxid.diagnosis.residuals import residuals
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
@@ -125,12 +126,23 @@ class Refinement:
         if not steps:
             raise CvxidError("nothing to plot: the refinement added no effect")
         labels = self.labels
-        series = {"test equation-error MSE": [steps[0].test_mse_before] + [s.test_mse_after for s in steps]}
+        mse = [steps[0].test_mse_before] + [s.test_mse_after for s in steps]
+        # a fed-back delay added is scored on its own rows (they start later): a line of its own from there
+        moved = next((i for i in range(1, len(steps)) if not np.isclose(
+            steps[i].test_mse_before, steps[i - 1].test_mse_after, rtol=1e-9, atol=0)), None)
+        if moved is None:
+            series = {"test equation-error MSE": mse}
+        else:
+            series = {"test equation-error MSE": mse[:moved + 1] + [np.nan] * (len(mse) - moved - 1),
+                      "the same, on the rows of the added delay": [np.nan] * moved + [steps[moved].test_mse_before]
+                      + mse[moved + 1:]}
         fits = [steps[0].fit_before] + [s.fit_after for s in steps]
         last = _drawable(final)
         if last is not None:
             labels = labels + [FINAL]
-            series["test equation-error MSE"].append(np.nan if final_mse is None else final_mse)
+            for values in series.values():
+                values.append(np.nan)
+            list(series.values())[-1][-1] = np.nan if final_mse is None else final_mse
             fits.append(mean_fit(last))
         if all(f is not None for f in fits):
             series["test free-run error (1 - fit)"] = [1.0 - f / 100.0 for f in fits]
@@ -236,7 +248,14 @@ def refine(
         if not pool:
             break
         if "delay" in pool and lacks_delay(system.specs) and fed_rows is None:
-            fed_rows = feedback_builders(system.specs, train, test, velocity, window)
+            try:
+                fed_rows = feedback_builders(system.specs, train, test, velocity, train_rows.window)
+            except CvxidError as exc:  # (said once; the loop goes on without it)
+                warnings.warn(f"the diagnosis leaves out the fed-back delay: {exc}", CvxidWarning, stacklevel=2)
+                candidates = [c for c in (candidates if candidates is not None else pool) if c != "delay"]
+                pool = [c for c in pool if c != "delay"]
+                if not pool:
+                    break
         dx = diagnose(system, train, test, pool, velocity, window, (train_rows, test_rows), fed_rows)
         diagnoses.append(dx)
         best = dx.top
@@ -252,9 +271,10 @@ def refine(
         group = next(g for g in dx.groups if best in g)
         # the equation error cannot tell a collinear group's members apart: of those that
         # lower it, the free run of the test record chooses
-        # (terms against terms, parameters against parameters: an input delay against a fed-back delay to add)
-        rivals = [g for g in group if dx.candidates[g].reestimated == dx.candidates[best].reestimated
-                  and (g == best or dx.ranking.loc[g, "validation_ratio"] > 1)]
+        # (terms against terms; a delay estimated again alone; an input delay against a fed-back delay to add)
+        rivals = [g for g in group if g == best or dx.ranking.loc[g, "validation_ratio"] > 1 and (
+            not dx.candidates[g].reestimated and not dx.candidates[best].reestimated
+            or lacking and {g, best} == {"delay", "input_delay"})]
         tried = {g: _with_candidate(system, g, dx, train, *rows_for(g), selection) for g in rivals}
         compared = {g: compare_system(m, test, initial="record") for g, m in tried.items()}
         if len(rivals) > 1:

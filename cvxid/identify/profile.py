@@ -77,7 +77,7 @@ def profile_delay(builder, support=None, nonnegative=(), grid: int = GRID, level
     or a :class:`~cvxid.regression.builder.SystemBuilder`); ``support`` is a boolean mask
     over the columns (all by default), ``nonnegative`` and ``ties`` the constraints kept.
     ``interval = False``: the best delay alone (the interval's bisections cost as much again
-    as the grid; its interval is NaN).
+    as the grid; its interval and effective rows are NaN).
     """
     delay = builder.delay
     return _profile(lambda tau: builder.at(tau, model), delay.tau_min, delay.tau_max, support, nonnegative, grid,
@@ -147,14 +147,16 @@ def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: in
     left, right = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
     best = minimize_scalar(value, bounds=(left, right), method="bounded", options={"xatol": 1e-6 * hi})
     tau = float(best.x) if best.fun <= values[i] else float(taus[i])
+    order = np.argsort(list(cache))
+    if not interval:
+        return DelayProfile(np.array(list(cache))[order], np.array(list(cache.values()))[order], tau,
+                            (np.nan, np.nan), np.nan, method)
     reg, reduced, scaled = fit(tau)
     n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
     bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
-    bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus)) if interval else \
-        (np.nan, np.nan)
+    bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
     order = np.argsort(list(cache))
-    all_taus = np.array(list(cache))[order]
-    return DelayProfile(all_taus, np.array(list(cache.values()))[order], tau, bounds, n_eff, method)
+    return DelayProfile(np.array(list(cache))[order], np.array(list(cache.values()))[order], tau, bounds, n_eff, method)
 
 
 def _crossing(value, tau, edge, bound, grid) -> float:

@@ -143,6 +143,10 @@ class AlgebraicTransform:
             stack.append(cumulative_simpson(stack[-1], dx=self.dt, initial=0.0))
         return stack[count]
 
+    def clear(self) -> None:
+        """Forget the cached integrals (each holds its signal alive)."""
+        self._cache.clear()
+
     def rows(self, read: Reader, d: int = 0) -> np.ndarray:
         """:meth:`column` of the signal that ``read`` gives (read whole: every row of the
         whole-record operation reads the record from its start)."""
@@ -257,6 +261,9 @@ class RestartTransform:
             windows = read(slice(0, self.whole * self.length)).reshape(self.whole, self.length)
             parts.append(self.window.column(windows, d).ravel())
         parts += [p.column(read(slice(a, b)), d) for p, (a, b) in zip(self.tail, self.bounds[self.whole:])]
+        for transform in (self.window, *self.tail):  # (each call reads afresh: its integrals are never asked again)
+            if transform is not None:
+                transform.clear()
         return np.concatenate(parts)
 
     def column(self, signal: np.ndarray, d: int = 0) -> np.ndarray:
