@@ -195,9 +195,9 @@ def _added_delay_note(out: RunResult) -> str:
     """For the warnings about a delay: that the diagnosis added it (its spec has no
     ``[model.delay]`` to change), else nothing."""
     start = out.refinement.start if out.refinement is not None else None
-    if start is None or all(s.delay is not None for s in start.specs.values()):
-        return ""
     delay = next(iter(out.system.models.values())).spec.delay
+    if start is None or delay is None or all(s.delay is not None for s in start.specs.values()):
+        return ""
     return (f" (this delay was added by the diagnosis, searched in [0, {delay.tau_max:g}] s: to set its range or gain, "
             "write it into the spec as a [model.delay] table)")
 
