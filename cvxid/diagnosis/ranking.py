@@ -142,7 +142,10 @@ def diagnose(
     A model without a delay offered the ``delay`` candidate (a fed-back delay to add) is
     scored with every candidate on the rows of the model with that delay
     (:func:`feedback_builders`, or ``fed_builders``), at the delay whose column, beside
-    the model's terms, fits the training rows best (the delay profile)."""
+    the model's terms, fits the training rows best (the delay profile).  That choice
+    flatters its ERR (a column picked from many); its validation ratio is on the test
+    rows, which the choice did not see, and ranks it when there is a test record (left
+    out, with a word, where no delay fits the records: :func:`~cvxid.diagnosis.candidates.feedback_bound`)."""
     system = IdentifiedSystem.of(model)
     spec = system.spec
     found = candidates_of(system.specs, candidates if candidates is not None else default_candidates(system.specs))
