@@ -77,7 +77,9 @@ def noise_level(y: np.ndarray) -> float:
     y = np.asarray(y, float)
     q = quantisation_step(y)
     d3 = np.abs(np.diff(y, 3))
-    differences = (_grouped_median(d3, q) if q > 0 else float(np.median(d3))) / 0.6745 / np.sqrt(20.0)
+    # (medians in place: a long record's copies are record-sized)
+    median = _grouped_median(d3, q) if q > 0 else float(np.median(d3, overwrite_input=True))
+    differences = median / 0.6745 / np.sqrt(20.0)
     del d3
     _, _, floor_density = _spectrum(y, 1.0)
     floor = float(np.sqrt(0.5 * floor_density))
@@ -91,7 +93,7 @@ def _grouped_median(values: np.ndarray, q: float) -> float:
     as spread evenly over its bin (``k q`` stands for ``[(k - 1/2) q, (k + 1/2) q)``, and 0
     for ``[0, q/2)``): the grouped-data median."""
     levels = np.round(values / q)
-    m = float(np.median(levels))
+    m = float(np.median(levels, overwrite_input=True))  # (reorders levels: the counts below do not mind)
     below, at = np.count_nonzero(levels < m), np.count_nonzero(levels == m)
     low, width = (0.0, 0.5) if m == 0 else (m - 0.5, 1.0)
     return q * (low + width * (0.5 * levels.size - below) / max(at, 1))
