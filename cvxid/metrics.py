@@ -63,17 +63,19 @@ def noise_level(y: np.ndarray) -> float:
     half taken as white, :func:`_spectrum`), from the floor (the Silverbox, 610 Hz: 4.8 mV by the
     third difference, 0.12 mV by the floor).
 
-    A quantised record (:func:`quantisation_step` :math:`q`) adds its rounding error,
-    :math:`\sqrt{\sigma^2 + q^2/12}`, and its third differences are multiples of
-    :math:`q`, whose median is read within its bin (the grouped median: the plain one
-    sits on the grid, a few % off at noise 0.01 and steps of 0.001).  One whose estimate
-    falls below :math:`q/\sqrt{12}` is a staircase: most of its third differences are 0
-    (its noise read 0: an outside check, steps of 0.01 on a motion of 0.33 RMS, got the
-    shortest smoothing window, a velocity of spikes and a test fit of 74 % for 99.7 %);
-    its :math:`\sigma` is then the spectrum's floor, which sees part of the noise hidden
-    under a step.  Measured on records rounded to 0.1 to 30 % of their RMS with noise under
-    and over a step: within -4 … +50 % of the true error's deviation (the smoothing
-    window's rule wants no less; it took windows of 33 samples for 373 at 5 % short)."""
+    A quantised record (:func:`quantisation_step` :math:`q`) has third differences that
+    are multiples of :math:`q`, whose median is read within its bin (the grouped median:
+    the plain one sits on the grid, a few % off at noise 0.01 and steps of 0.001); where
+    the noise or the motion dithers the steps, that estimate holds the rounding error
+    already.  One whose estimate falls below the rounding error :math:`q/\sqrt{12}` is a
+    staircase: most of its third differences are 0 (its noise read 0: an outside check,
+    steps of 0.01 on a motion of 0.33 RMS, got the shortest smoothing window, a velocity of
+    spikes and a test fit of 74 % for 99.7 %); its noise is then
+    :math:`\sqrt{q^2/12 + \sigma_{\rm floor}^2}`, the spectrum's floor seeing part of the
+    noise hidden under a step.  Measured on records rounded to 0.1 to 30 % of their RMS
+    with noise under and over a step: within -5 … +25 % of the true error's deviation (the
+    rounding added in the dithered case too, as a stranger's review found, counted it
+    twice: up to +52 %, and windows a step longer)."""
     y = np.asarray(y, float)
     q = quantisation_step(y)
     d3 = np.abs(np.diff(y, 3))
@@ -85,7 +87,7 @@ def noise_level(y: np.ndarray) -> float:
     floor = float(np.sqrt(0.5 * floor_density))
     white = floor if differences > SIGNAL_DOMINATES * floor else differences
     rounding = q / np.sqrt(12.0)
-    return float(np.hypot(rounding, floor if white < rounding else white))
+    return float(np.hypot(rounding, floor)) if white < rounding else white
 
 
 def _grouped_median(values: np.ndarray, q: float) -> float:
