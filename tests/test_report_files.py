@@ -76,19 +76,19 @@ def test_a_rerun_removes_the_earlier_runs_figures_and_a_foreign_result_is_refuse
     assert main(["run", str(write_spec(tmp_path)), "--out", str(out)]) == 0
     assert "replacing the files of an earlier run of 'earlier'" in capsys.readouterr().out
     assert not (out / "diagnosis.png").exists() and (out / "notes.png").exists() and (out / "test_fit.png").exists()
-    foreign = tmp_path / "foreign"
-    foreign.mkdir()
-    (foreign / "result.json").write_text('{"accuracy": 0.93}')
-    assert main(["run", str(write_spec(tmp_path)), "--out", str(foreign)]) == 2
-    assert "holds a result.json that cvxid did not write" in capsys.readouterr().err
-    assert (foreign / "result.json").read_text() == '{"accuracy": 0.93}' and len(list(foreign.iterdir())) == 1
+
+    def refused(folder: str, name: str, text: str, said: str):
+        """--out into a folder holding the user's ``name``: refused, saying ``said``, untouched."""
+        theirs = tmp_path / folder
+        theirs.mkdir()
+        (theirs / name).write_text(text)
+        assert main(["run", str(write_spec(tmp_path)), "--out", str(theirs)]) == 2
+        assert said in capsys.readouterr().err
+        assert (theirs / name).read_text() == text and len(list(theirs.iterdir())) == 1
+
+    refused("foreign", "result.json", '{"accuracy": 0.93}', "holds a result.json that cvxid did not write")
     # a report's own names without a result.json beside them are the user's (an outside check lost its notes)
-    notes = tmp_path / "notes"
-    notes.mkdir()
-    (notes / "report.md").write_text("my notes")
-    assert main(["run", str(write_spec(tmp_path)), "--out", str(notes)]) == 2
-    assert "holds report.md but no result.json of an earlier cvxid run" in capsys.readouterr().err
-    assert (notes / "report.md").read_text() == "my notes" and len(list(notes.iterdir())) == 1
+    refused("notes", "report.md", "my notes", "holds report.md but no result.json of an earlier cvxid run")
     # a run stopped before its result.json (its figures written, then Ctrl-C) leaves a folder the next run reuses
     stopped = tmp_path / "stopped"
     assert main(["run", str(write_spec(tmp_path)), "--out", str(stopped)]) == 0

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import csv
 import re
-
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path

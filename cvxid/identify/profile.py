@@ -147,15 +147,13 @@ def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: in
     left, right = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
     best = minimize_scalar(value, bounds=(left, right), method="bounded", options={"xatol": 1e-6 * hi})
     tau = float(best.x) if best.fun <= values[i] else float(taus[i])
-    order = np.argsort(list(cache))
-    if not interval:
-        return DelayProfile(np.array(list(cache))[order], np.array(list(cache.values()))[order], tau,
-                            (np.nan, np.nan), np.nan, method)
-    reg, reduced, scaled = fit(tau)
-    n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
-    bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
-    bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
-    order = np.argsort(list(cache))
+    bounds, n_eff = (np.nan, np.nan), np.nan
+    if interval:
+        reg, reduced, scaled = fit(tau)
+        n_eff = effective_rows(reg.residual(reduced.to_physical(scaled)))
+        bound = value(tau) * (1 + chi2.ppf(level, 1) / n_eff)
+        bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
+    order = np.argsort(list(cache))  # (every delay evaluated, the crossings' too)
     return DelayProfile(np.array(list(cache))[order], np.array(list(cache.values()))[order], tau, bounds, n_eff, method)
 
 

@@ -135,12 +135,12 @@ def _savgol_window(y: np.ndarray, polyorder: int) -> int:
         square = sum(np.sum((p - savgol_filter(p, length, polyorder, mode="interp")) ** 2) for p in pieces)
         return np.sqrt(square / size / (1 - savgol_coeffs(length, polyorder)[length // 2]))
 
-    sigma, best = noise_level(y), polyorder + 2 | 1
-    if best >= min(p.size for p in pieces) // 4:
+    sigma, best, limit = noise_level(y), polyorder + 2 | 1, min(p.size for p in pieces) // 4
+    if best >= limit:
         return best
     readings = [noise(best)]
     length = int(best * 1.25) | 1
-    while length < min(p.size for p in pieces) // 4:
+    while length < limit:
         readings.append(noise(length))
         if readings[-1] > 1.02 * max(sigma, float(np.median(readings))):
             break
