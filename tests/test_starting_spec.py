@@ -146,3 +146,25 @@ def test_init_names_a_text_column(tmp_path, capsys):
                                                           for i in range(100)))
     assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
     assert "not numeric (text, or mostly empty): x" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("time_unit, slow, expected", [
+    (1.0, 1.0, (0.5, 1.0)),       # an ordinary plant (period about 2.5 s): about the documented 0.5 s
+    (1.0, 10.0, (4.0, 8.0)),      # ten times slower (period about 25 s): a quarter of it, where 0.5 s was written
+    (1e3, 1.0, (400.0, 800.0)),   # the ordinary plant timed in ms: the same quarter period, in ms
+])
+def test_init_searches_delays_on_the_record_s_own_time_scale(tmp_path, time_unit, slow, expected):
+    """An outside check: for a slow plant (period 21 s, delay 2 s) `cvxid init` wrote
+    tau_max = 0.5 and the run returned a delay pinned under it with a wrong mass; for a
+    record timed in ms it wrote a spec the run refused.  The longest delay searched is a
+    quarter period of the output's median frequency (at least 0.5, at most a tenth of the
+    record), in the time column's unit."""
+    record = simulated_record()
+    t = record.time * slow * time_unit
+    np.savetxt(tmp_path / "rig.csv", np.column_stack([t, record.output("x"), record.input("f")]),
+               delimiter=",", header="t,x,f", comments="")
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "rig.toml")]) == 0
+    spec = load_problem(tmp_path / "rig.toml")
+    tau_max = spec.model.delay.tau_max
+    assert expected[0] <= tau_max <= expected[1], tau_max
+    assert tau_max > 0.15 * slow * time_unit  # the delay of the record's system lies inside the range searched

@@ -277,7 +277,7 @@ class RunResult:
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
             *([f"  {self.polish.summary()}"] if self.polish else []),
             "",
-            frame.to_string(float_format=lambda v: f"{v:.4f}"),
+            frame.to_string(float_format=lambda v: f"{v:.5g}"),  # (significant digits: a mass of 1e-3 reads)
             "",
         ]
         return "\n".join(lines + self._sections() + self._footer())

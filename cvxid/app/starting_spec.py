@@ -23,6 +23,7 @@ import numpy as np
 
 from cvxid.data.experiment import READERS
 from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
 from cvxid.spec.toml import tomllib
 from scipy.signal import welch
@@ -44,6 +45,9 @@ class Columns:
     dt: float
     samples: int
     why: str
+    median_period: float = 0.0
+    """The period of the output's median frequency (half its variance lies below it, above
+    the noise floor: :func:`~cvxid.metrics.band_edge`), in the time column's unit."""
 
 
 def _numeric(columns: dict) -> dict[str, np.ndarray]:
@@ -153,7 +157,9 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if dt is None:
         t = numeric[time]
         dt = float((t[-1] - t[0]) / (t.size - 1))
-    return Columns(time, output, input, float(dt), samples, "; ".join(reasons))
+    y = numeric[output][np.isfinite(numeric[output])]
+    median_period = 2 * np.pi / band_edge(y, dt, share=0.5) if y.size > 16 else 0.0
+    return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period))
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -193,7 +199,7 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
     duration = (columns.samples - 1) * columns.dt
     train_part = None if test else (0.0, TRAIN_FRACTION)
     usable = duration * (TRAIN_FRACTION if test is None else 1.0)
-    tau_max = float(f"{min(0.5, usable / 10):.3g}")
+    tau_max = float(f"{min(usable / 10, max(0.5, columns.median_period / 4)):.3g}")
     why = columns.why.replace("\n", " ")
     parts = [
         f"# A starting spec written by `cvxid init {data.name}`: {columns.samples:,} samples, dt = {columns.dt:g} s "
@@ -220,7 +226,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
         "[model.delay]                        # a delayed feedback b x(t - tau); remove this table if there is none",
         f'signal = "{coordinate}"',
         'method = "exact"',
-        f"tau_max = {tau_max:g}                       # the longest delay searched (s)",
+        f"tau_max = {tau_max:g}                       # the longest delay searched (s): a quarter period of the output's",
+        "#                                    # median frequency, at least 0.5 s, at most a tenth of the record",
         "# gain = 1.0                         # the feedback gain b, if known: give it. Estimated, it often trades",
         "#                                    # with the stiffness (b x(t - tau) = b x - b tau x' + ...; the run warns)",
         "",

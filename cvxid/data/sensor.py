@@ -22,10 +22,17 @@ simulations:
 - **outlier**: a sample whose distance from the median of its five neighbours exceeds
   ``OUTLIER_LEVELS`` times the robust scale of those distances,
 
-  .. math:: s = \max\bigl(1.4826\,\mathrm{median}\,|d|,\; P_{99}(|d|)/3\bigr),
+  .. math:: s(d) = \max\bigl(1.4826\,\mathrm{median}\,|d|,\; P_{99}(|d|)/3\bigr),
      \qquad d_k = y_k - \mathrm{median}(y_{k-2}, \dots, y_{k+2}),
 
-  in runs of at most ``OUTLIER_MAX_RUN`` samples (a glitch, not a motion).
+  and whose distance from the cubic through its four neighbours,
+  :math:`e_k = y_k - (-y_{k-2} + 4 y_{k-1} + 4 y_{k+1} - y_{k+2})/6 = \Delta^4 y_{k-2}/6`,
+  exceeds ``OUTLIER_CUBIC_LEVELS`` times :math:`s(e)`, in runs of at most ``OUTLIER_MAX_RUN`` samples (a glitch, not a motion).
+  The median alone takes a smooth turning point for a glitch where the noise is small
+  (its median is the next sample, :math:`|\ddot y|\,\Delta t^2` away, while a monotone
+  stretch's median is the sample itself); the cubic follows the turning point
+  (:math:`e_k = O(\Delta t^4)`), and the median keeps a glitch's neighbours, which the
+  cubic's :math:`e` shares, from being counted with it.
 """
 
 from __future__ import annotations
@@ -45,6 +52,7 @@ CLIP_RATIO = 10.0
 FROZEN_MIN_SAMPLES = 50
 FROZEN_RATIO = 10.0
 OUTLIER_LEVELS = 20.0
+OUTLIER_CUBIC_LEVELS = 10.0
 OUTLIER_MAX_RUN = 3
 
 FAULT_HANDLING = ("warn", "gap", "ignore")
@@ -156,17 +164,24 @@ def _percentile_with_ones(values: np.ndarray, ones: int, q: float) -> float:
     return at(below) + (position - below) * (at(below + 1) - at(below))
 
 
+def _robust_scale(distance: np.ndarray) -> float:
+    middle, high = np.percentile(distance, [50, 99])
+    return max(1.4826 * middle, high / 3)
+
+
 def _outliers(name: str, y: np.ndarray, skip: np.ndarray) -> list[SensorFault]:
-    size = np.zeros(y.size)
+    size, off_cubic = np.zeros(y.size), np.zeros(y.size)
     for a, b in _runs(np.isfinite(y)):                   # gaps (NaN) split the record
         piece = size[a:b]
         np.subtract(y[a:b], median_filter(y[a:b], size=5, mode="nearest"), out=piece)
         np.abs(piece, out=piece)
-    middle, high = np.percentile(size, [50, 99])
-    scale = max(1.4826 * middle, high / 3)
+        if b - a >= 5:  # e_k is the fourth difference / 6 (a piece's first and last two samples keep 0)
+            off_cubic[a + 2:b - 2] = np.abs(np.diff(y[a:b], 4)) / 6
+    scale = _robust_scale(size)
     if scale == 0:
         return []
     far = (size > OUTLIER_LEVELS * scale) & ~skip
+    far &= off_cubic > OUTLIER_CUBIC_LEVELS * _robust_scale(off_cubic)
     mask = np.zeros(y.size, bool)
     for a, b in _runs(far):
         if b - a <= OUTLIER_MAX_RUN:
