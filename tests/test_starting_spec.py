@@ -149,16 +149,16 @@ def test_init_names_a_text_column(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("time_unit, slow, expected", [
-    (1.0, 1.0, (0.5, 1.0)),       # an ordinary plant (period about 2.5 s): about the documented 0.5 s
-    (1.0, 10.0, (4.0, 8.0)),      # ten times slower (period about 25 s): a quarter of it, where 0.5 s was written
-    (1e3, 1.0, (400.0, 800.0)),   # the ordinary plant timed in ms: the same quarter period, in ms
+    (1.0, 1.0, (0.5, 0.55)),      # an ordinary plant (median period about 4 s): about the documented 0.5 s
+    (1.0, 10.0, (4.0, 6.0)),      # ten times slower: an eighth of its median period, where 0.5 s was written
+    (1e3, 1.0, (400.0, 600.0)),   # the ordinary plant timed in ms: the same eighth of its period, in ms
 ])
 def test_init_searches_delays_on_the_record_s_own_time_scale(tmp_path, time_unit, slow, expected):
     """An outside check: for a slow plant (period 21 s, delay 2 s) `cvxid init` wrote
     tau_max = 0.5 and the run returned a delay pinned under it with a wrong mass; for a
-    record timed in ms it wrote a spec the run refused.  The longest delay searched is a
-    quarter period of the output's median frequency (at least 0.5, at most a tenth of the
-    record), in the time column's unit."""
+    record timed in ms it wrote a spec the run refused.  The longest delay searched is an
+    eighth of the period of the output's median frequency (at least 0.5, at most a tenth of
+    the record), in the time column's unit."""
     record = simulated_record()
     t = record.time * slow * time_unit
     np.savetxt(tmp_path / "rig.csv", np.column_stack([t, record.output("x"), record.input("f")]),

@@ -306,7 +306,7 @@ def _warn_drift(out: RunResult) -> None:
             continue
         allowed = max(100.0 - c.ceiling_percent, 1e-9)
         free, ahead = (100.0 - c.fit_percent) / allowed, (100.0 - c.k_step_fit_percent) / allowed
-        if free >= DRIFT and free >= DRIFT * max(ahead, 1.0):
+        if free >= DRIFT * max(ahead, 1.0):
             where = "" if len(out.comparisons) == 1 else f" of '{label}'"
             warnings.warn(
                 f"the free run{where} drifts away from the test record: fit {c.fit_percent:.1f} % where the noise "

@@ -190,6 +190,15 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
     return "\n".join(lines)
 
 
+def longest_delay(median_period: float, usable: float) -> float:
+    """The starting spec's ``tau_max``: an eighth of the period of the output's median
+    frequency (:attr:`Columns.median_period`), at least 0.5, at most a tenth of the
+    ``usable`` record, in the time column's unit (3 significant digits).  A slow plant's
+    delay may be seconds; an ordinary one keeps the documented 0.5 s
+    (``examples/init_delay_range.py``)."""
+    return float(f"{min(usable / 10, max(0.5, median_period / 8)):.3g}")
+
+
 def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: Path) -> str:
     """The text of a starting spec (see the module docstring)."""
     coordinate = _identifier(columns.output, "x")
@@ -199,7 +208,7 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
     duration = (columns.samples - 1) * columns.dt
     train_part = None if test else (0.0, TRAIN_FRACTION)
     usable = duration * (TRAIN_FRACTION if test is None else 1.0)
-    tau_max = float(f"{min(usable / 10, max(0.5, columns.median_period / 4)):.3g}")
+    tau_max = longest_delay(columns.median_period, usable)
     why = columns.why.replace("\n", " ")
     parts = [
         f"# A starting spec written by `cvxid init {data.name}`: {columns.samples:,} samples, dt = {columns.dt:g} s "
@@ -226,8 +235,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
         "[model.delay]                        # a delayed feedback b x(t - tau); remove this table if there is none",
         f'signal = "{coordinate}"',
         'method = "exact"',
-        f"tau_max = {tau_max:g}                       # the longest delay searched (s): a quarter period of the output's",
-        "#                                    # median frequency, at least 0.5 s, at most a tenth of the record",
+        f"tau_max = {tau_max:g}                       # the longest delay searched (s): an eighth of the period of",
+        "#                                    # the output's median frequency, at least 0.5 s, at most a tenth of the record",
         "# gain = 1.0                         # the feedback gain b, if known: give it. Estimated, it often trades",
         "#                                    # with the stiffness (b x(t - tau) = b x - b tau x' + ...; the run warns)",
         "",

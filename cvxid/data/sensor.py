@@ -27,7 +27,8 @@ simulations:
 
   and whose distance from the cubic through its four neighbours,
   :math:`e_k = y_k - (-y_{k-2} + 4 y_{k-1} + 4 y_{k+1} - y_{k+2})/6 = \Delta^4 y_{k-2}/6`,
-  exceeds ``OUTLIER_CUBIC_LEVELS`` times :math:`s(e)`, in runs of at most ``OUTLIER_MAX_RUN`` samples (a glitch, not a motion).
+  exceeds ``OUTLIER_CUBIC_LEVELS`` times :math:`s(e)`, in runs of at most
+  ``OUTLIER_MAX_RUN`` samples (a glitch, not a motion).
   The median alone takes a smooth turning point for a glitch where the noise is small
   (its median is the next sample, :math:`|\ddot y|\,\Delta t^2` away, while a monotone
   stretch's median is the sample itself); the cubic follows the turning point
