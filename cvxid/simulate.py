@@ -210,7 +210,8 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | lis
     """Positions and velocities of every coordinate at the sample ``time``.  ``force`` is
     the shared input (a function of time or samples on ``time``) or a list of one input
     per equation, scaled by each equation's ``input_gain``; ``past`` and ``substeps`` as in
-    :func:`simulate`."""
+    :func:`simulate`.  Starts ``x0``, ``v0`` of shape ``(B,)`` (every coordinate's) are a
+    batch of ``B`` runs of the same system, in parallel: the values then ``(n, B)``."""
     t = np.asarray(time, float)
     coords = [eq.coordinate for eq in system.equations]
     gains = np.array([eq.input_gain for eq in system.equations])
@@ -220,11 +221,15 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | lis
         each = np.column_stack([half_steps(f, t, h, fine.size // 2) for f in inputs])
         return (each * gains[None, :])[:, :, None]
 
-    coefs, mass, delay_gain = system.arrays()
+    batch = np.ndim(x0[coords[0]]) > 0
+    starts = [np.array([np.atleast_1d(np.asarray(s[c], float)) for c in coords]) for s in (x0, v0)]
+    width = starts[0].shape[1]
+    coefs, mass, delay_gain = (np.repeat(a, width, axis=1) for a in system.arrays())
     X, V = integrate(t, forces, coords, [eq.terms for eq in system.equations], coefs, mass, delay_gain,
-                     np.array([system.tau]), np.array([[x0[c]] for c in coords]), np.array([[v0[c]] for c in coords]),
-                     _delayed_index(system), system.derivative, system.history, substeps, past)
-    return {c: X[:, j, 0] for j, c in enumerate(coords)}, {c: V[:, j, 0] for j, c in enumerate(coords)}
+                     np.full(width, system.tau), *starts, _delayed_index(system), system.derivative, system.history,
+                     substeps, past)
+    pick = (lambda a, j: a[:, j, :]) if batch else (lambda a, j: a[:, j, 0])  # noqa: E731
+    return {c: pick(X, j) for j, c in enumerate(coords)}, {c: pick(V, j) for j, c in enumerate(coords)}
 
 
 def _delayed_index(system: CoupledSystem) -> int:

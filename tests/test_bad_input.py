@@ -373,8 +373,9 @@ def test_a_spec_data_error_names_its_table(tmp_path, capsys, rng):
 
 
 def test_a_test_record_that_is_the_training_record_is_said(tmp_path):
-    """[data.test] reading the training file's same samples (an outside check's spec): the test figures
-    would be on the data the fit saw, and the run says so; a split of one file by fraction is not warned."""
+    """[data.test] reading the training file's same samples (an outside check's spec), or part of them (a
+    later outside check: fraction [0.5, 1] against [0, 0.8], silent): the test figures would be on the data the
+    fit saw, and the run says how much; a split of one file by fraction is not warned."""
     import json
 
     from cvxid.app.cli import main
@@ -384,14 +385,28 @@ def test_a_test_record_that_is_the_training_record_is_said(tmp_path):
     force = lambda s: 3 * np.sin(2.1 * s) + 2 * np.sin(5.3 * s + 1)
     x, _ = simulate(System((parse_term("x'"), parse_term("x")), np.array([0.5, 6.0]), 1.0, "x"), t, force, 0.3, 0.0)
     np.savetxt(tmp_path / "a.csv", np.column_stack([t, x, force(t)]), delimiter=",", header="t,x,f", comments="")
-    said = "[data.test] reads the same file and samples as [data.train]"
-    for test, warned in (('file = "a.csv"', True), ('file = "a.csv"\nfraction = [0.7, 1.0]', False)):
-        train = 'file = "a.csv"' + ("" if warned else "\nfraction = [0.0, 0.7]")
-        (tmp_path / "spec.toml").write_text(f'[data.train]\n{train}\n[data.test]\n{test}\n[model.library]\n'
+    said = "of its samples from the part of the same file that [data.train] reads"
+    for train, test, share in ((None, None, 100), ([0.0, 0.8], [0.5, 1.0], 60), ([0.0, 0.7], [0.7, 1.0], None)):
+        parts = [f'file = "a.csv"' + (f"\nfraction = {part}" if part else "") for part in (train, test)]
+        (tmp_path / "spec.toml").write_text(f'[data.train]\n{parts[0]}\n[data.test]\n{parts[1]}\n[model.library]\n'
                                             'terms = ["x", "x\'"]\n')
         assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
-        warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
-        assert any(said in w for w in warnings) == warned, warnings
+        warnings = [w for w in json.loads((tmp_path / "out" / "result.json").read_text())["warnings"] if said in w]
+        assert [w.split(" %")[0].split()[-1] for w in warnings] == ([str(share)] if share else []), warnings
+
+
+def _said_of_fits(warn, fit, k_step, ceiling) -> list[str]:
+    """What ``warn`` (a check of a run's test comparisons) says of a comparison with these fits (%)."""
+    import warnings
+    from types import SimpleNamespace
+
+    from cvxid.diagnosis.compare import Comparison
+
+    comparison = Comparison(np.zeros(3), np.zeros(3), np.zeros(3), fit, None, 100, k_step, ceiling_percent=ceiling)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn(SimpleNamespace(comparisons={"x": comparison}))
+    return [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
 
 
 @pytest.mark.parametrize("fit, k_step, ceiling, warned", [
@@ -402,18 +417,22 @@ def test_a_test_record_that_is_the_training_record_is_said(tmp_path):
 def test_a_free_run_that_drifts_while_each_step_is_right_is_a_warning(fit, k_step, ceiling, warned):
     """The test record's free run 57 times further off than the noise allows while its
     k-step prediction is at the noise: the held-out benchmark's fit said nothing."""
-    import warnings
-    from types import SimpleNamespace
-
     from cvxid.app.run import _warn_drift
-    from cvxid.diagnosis.compare import Comparison
 
-    comparison = Comparison(np.zeros(3), np.zeros(3), np.zeros(3), fit, None, 100, k_step, ceiling_percent=ceiling)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        _warn_drift(SimpleNamespace(comparisons={"x": comparison}))
-    said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
+    said = _said_of_fits(_warn_drift, fit, k_step, ceiling)
     assert bool(said) == warned, said
     if warned:
         assert "drifts away from the test record: fit 23.3 % where the noise allows 98.7 %" in said[0]
         assert "100-step-ahead prediction fits 98.6 %" in said[0] and "basin of the simulation error" in said[0]
+
+
+@pytest.mark.parametrize("ceiling, warned", [(83.3, True), (89.9, True), (90.1, False), (98.7, False)])
+def test_a_test_record_that_barely_moves_above_its_noise_is_said(ceiling, warned):
+    """An outside check's step response: the test record (the last fifth) had settled, a perfect model would fit
+    83.3 % of it, and the diagnosis chose on it without a word."""
+    from cvxid.app.run import _warn_quiet_test
+
+    said = _said_of_fits(_warn_quiet_test, ceiling - 0.1, ceiling, ceiling)
+    assert bool(said) == warned, said
+    if warned:
+        assert f"a perfect model would fit only {ceiling:.1f} %" in said[0] and "give a test record" in said[0]

@@ -180,5 +180,6 @@ def test_the_diagnosis_finds_a_coupled_systems_late_input():
     raw["diagnose"] = {"refine": True}
     result = run(parse_problem(raw, ROOT))
     assert [s.added for s in result.refinement.steps] == ["input_delay"]
-    assert result.refinement.steps[0].fit_after > result.refinement.steps[0].fit_before + 10  # (measured 86 -> 98.7 %)
+    step = result.refinement.steps[0]  # the free-run error falls (measured 90.9 -> 99.4 % from the estimated start)
+    assert 100 - step.fit_before > 5 * (100 - step.fit_after)
     assert result.physical["tau_u"] == pytest.approx(0.04, rel=0.01)

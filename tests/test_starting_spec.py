@@ -130,6 +130,7 @@ def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, heade
     (lambda rows: np.vstack([rows[:300], rows[299:]]), "time is not strictly increasing at sample 300"),
     (lambda rows: rows[:0], "the file has 0 data rows"),
     (lambda rows: rows[:1], "the file has 1 data row: nothing to identify"),
+    (lambda rows: np.column_stack([rows[:, :2], 0 * rows[:, 2]]), "input 'f' is constant"),  # a free decay
 ])
 def test_init_refuses_a_record_cvxid_run_would_refuse(tmp_path, capsys, damage, said):
     """Outside check: init wrote a spec it said "runs as written" for a file that cvxid run

@@ -180,6 +180,7 @@ class RunResult:
                 "ranking": self.simulation_refinement.rankings[0].reset_index().to_dict(orient="records")
                 if self.simulation_refinement.rankings else [],
                 "steps": [s.as_dict() for s in self.simulation_refinement.steps],
+                "at_precision": self.simulation_refinement.at_precision,
             },
             "stepwise": None if self.stepwise is None else {
                 "history": self.stepwise.history.to_dict(orient="records"),

@@ -68,6 +68,7 @@ def run(spec) -> RunResult:
         _warn_delay_at_bound(result)
         _warn_implausible(result)
         _warn_drift(result)
+        _warn_quiet_test(result)
     polished = (result.tau or {}).get("method") == "output_error"  # its delay supersedes the equation error's
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)
                                          and not (polished and issubclass(w.category, EquationErrorDelayWarning))))
@@ -317,6 +318,26 @@ def _warn_drift(out: RunResult) -> None:
                 "simulate; read its parameters with care", CvxidWarning, stacklevel=2)
 
 
+QUIET = 90.0
+"""A test record on which a perfect model would fit less than this (%, the noise's
+ceiling) barely moves above its noise."""
+
+
+def _warn_quiet_test(out: RunResult) -> None:
+    """A test record whose output barely moves above its noise (the fit a perfect model
+    would reach under :data:`QUIET`), said aloud: its figures, and the diagnosis's choices
+    made on it, rest on little (an outside check's step response, whose last fifth had
+    settled: a perfect model would fit 83.3 %)."""
+    for label, c in (out.comparisons or {}).items():
+        if c.ceiling_percent is not None and c.ceiling_percent < QUIET:
+            where = "" if len(out.comparisons) == 1 else f" ('{label}')"
+            warnings.warn(
+                f"the test record's output{where} barely moves above its noise: a perfect model would fit only "
+                f"{c.ceiling_percent:.1f} % of it, so its figures, and the diagnosis's choices made on it, rest on "
+                "little; give a test record in which the system moves (excited as the training record is)",
+                CvxidWarning, stacklevel=2)
+
+
 def _best_velocity(spec) -> RunResult:
     """``velocity = "auto"``: identify with each estimator, keep the least test error."""
     if "test" not in spec.data:
@@ -355,6 +376,8 @@ def _identify(spec) -> RunResult:
                          'selected: add [model.library] select = true, or use estimator = "lstsq"')
     train = spec.experiment("train")
     test = spec.experiment("test") if "test" in spec.data else None
+    if test is not None:
+        spec.warn_overlap(train, test)
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
     if fit.orders:
         system = spec.at_order(system, max(fit.orders))

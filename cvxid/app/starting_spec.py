@@ -277,7 +277,8 @@ def init(data, out, test=None, time=None, output=None, input=None, dt=None, over
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CvxidWarning)  # (cvxid run says them)
             for which in spec.data:
-                spec.experiment(which)
+                spec.experiment(which).check_signals(sorted({e.input_column for e in spec.equations.values()}),
+                                                     spec.coordinates)
     except CvxidError as exc:
         raise CvxidError(f"no spec written: {str(exc).removeprefix('spec: ')}") from None
     out.write_text(text)

@@ -180,6 +180,18 @@ class Experiment:
             raise CvxidError(f"an input delay must be a finite number >= 0, got {delay}")
         return CubicSpline(self.time, self.inputs[name])(np.maximum(self.time - delay, self.time[0]))
 
+    def check_signals(self, inputs, outputs) -> None:
+        """Refuse a record whose input is constant (nothing excites the system: a free decay
+        too) or whose output is constant (no motion to identify)."""
+        for name in inputs:
+            if np.ptp(self.input(name)) == 0:
+                raise CvxidError(f"experiment '{self.name}': input '{name}' is constant, so it does not excite the "
+                                 "system; identification needs a varying input")
+        for name in outputs:
+            if np.ptp(self.output(name)) == 0:
+                raise CvxidError(f"experiment '{self.name}': output '{name}' is constant, so the record holds no "
+                                 "motion to identify; check that the spec's [data] output names the measured position")
+
     def slice(self, a: int, b: int, name: str | None = None) -> "Experiment":
         """Samples ``a`` (included) to ``b`` (excluded)."""
         if not 0 <= a < b <= self.n or b - a < MIN_SAMPLES:

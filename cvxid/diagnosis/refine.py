@@ -267,7 +267,7 @@ def refine(
         def rows_for(name):  # a fed-back delay to add is scored on its own rows, the model without it too
             return fed_rows if name == "delay" and lacking else (train_rows, test_rows)
 
-        old = comparisons[-1] if comparisons else compare_system(system, test, initial="record")
+        old = comparisons[-1] if comparisons else compare_system(system, test)
         group = next(g for g in dx.groups if best in g)
         # the equation error cannot tell a collinear group's members apart: of those that
         # lower it, the free run of the test record chooses
@@ -276,18 +276,27 @@ def refine(
             not dx.candidates[g].reestimated and not dx.candidates[best].reestimated
             or lacking and {g, best} == {"delay", "input_delay"})]
         tried = {g: _with_candidate(system, g, dx, train, *rows_for(g), selection) for g in rivals}
-        compared = {g: compare_system(m, test, initial="record") for g, m in tried.items()}
+        compared = {g: compare_system(m, test) for g, m in tried.items()}
         if len(rivals) > 1:
             diagnoses[-1] = dx = dx.decided({g: mean_fit(c) for g, c in compared.items()})
-        best, rows = dx.top, rows_for(dx.top)
-        # (the model's test error: that of the last accepted step on the same rows, else computed)
-        before = steps[-1].test_mse_after if steps and rows[1] is test_rows else _test_mse(system, rows[1])
-        new, new_cmp = tried[best], compared[best]
-        after = _test_mse(new, rows[1])
-        falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
-        probability = _inclusion(system, new, best, dx, *rows) if falls else float("nan")
-        stopped = stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
-        if not accepted(probability):
+        # the best rival first; one the rule refuses gives way to the next (a quadratic damping whose
+        # refit simulates worse than its cubic rival's may still be the one whose errors fall)
+        fits = {g: mean_fit(c) for g, c in compared.items()}
+        refusal = None
+        for best in sorted(tried, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf,
+                           reverse=True):
+            rows = rows_for(best)
+            # (the model's test error: that of the last accepted step on the same rows, else computed)
+            before = steps[-1].test_mse_after if steps and rows[1] is test_rows else _test_mse(system, rows[1])
+            new, new_cmp = tried[best], compared[best]
+            after = _test_mse(new, rows[1])
+            falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
+            probability = _inclusion(system, new, best, dx, *rows) if falls else float("nan")
+            if accepted(probability):
+                break
+            refusal = refusal or stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
+        else:
+            stopped = refusal
             break
         stopped = None
         joined = dx.candidates[best]
@@ -362,12 +371,17 @@ def _selected_anew(system: SystemSpec, tau: float | None, train_rows: SystemBuil
 
 
 def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> float:
-    """The larger factor by which the free-run or the k-step-ahead simulation error (the
-    mean over coordinates) falls (a diverging simulation has an infinite error)."""
+    """The largest factor by which a simulation error of the test record (the mean over
+    coordinates) falls: the free run's from the estimated initial state or from the
+    record's own, or the k-step-ahead prediction's (a diverging simulation has an infinite
+    error).  From the record's own start a heavily damped wrong model forgets the start's
+    error where the right one carries it; on short stretches between gaps the estimated
+    start fits any model."""
     def error(fit):
         return np.inf if fit is None else max(100.0 - fit, 1e-12)
 
-    pairs = [(mean_fit(old, which), mean_fit(new, which)) for which in ("fit_percent", "k_step_fit_percent")]
+    pairs = [(mean_fit(old, which), mean_fit(new, which))
+             for which in ("fit_percent", "record_fit_percent", "k_step_fit_percent")]
     with np.errstate(invalid="ignore"):
         ratios = np.array([error(a) / error(b) for a, b in pairs])
     return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))

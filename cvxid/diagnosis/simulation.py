@@ -70,6 +70,10 @@ score (the polish's own step, :data:`~cvxid.identify.output_error.JACOBIAN_STEP`
 floor 1e-3)."""
 ITERATIONS = 50
 """Iterations of the polish with a candidate added (from the polished model)."""
+PRECISION = 1e-6
+"""A test record's free-run error below this share of its outputs' spread (RMS) is at the
+data's numerical precision (a noise-free record written with nine digits: 4e-9), where
+any term lowers it by chance: nothing is tried there."""
 
 
 @dataclass(frozen=True)
@@ -95,12 +99,17 @@ class SimulationRefinement:
     polish: PolishResult
     steps: list[SimulationStep]
     rankings: list[pd.DataFrame]
+    at_precision: bool = False
+    """Nothing tried: the model reproduces the test record to its numerical precision
+    (:data:`PRECISION`)."""
 
     def table(self) -> pd.DataFrame:
         return pd.DataFrame([s.as_dict() for s in self.steps]).set_index("added") if self.steps else pd.DataFrame()
 
     def __repr__(self) -> str:
         head = "Diagnosis by simulation error (score test, then the test record decides)"
+        if self.at_precision:
+            return head + ": none tried, the model reproduces the test record to its numerical precision"
         if not self.rankings:
             return head + ": no candidate"
         text = head + "\n" + self.rankings[0].to_string(float_format=lambda v: f"{v:.4g}")
@@ -214,7 +223,9 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     the standard errors' alone."""
     current, steps, rankings = polished, [], []
     before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
-    while before is not None and len(steps) < max_steps:
+    spread = np.sqrt(np.mean([np.nanvar(test.output(c)) for c in polished.system.coordinates]))
+    precise = bool(before is not None and np.sqrt(np.mean(before**2)) < PRECISION * spread)
+    while before is not None and not precise and len(steps) < max_steps:
         system = current.system
         pool = [c for c in (candidates if candidates is not None else default_candidates(system.specs))
                 if c != "delay" and missing(system.specs, c)]
@@ -243,7 +254,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         # same terms; without a profile of its own its intervals are the standard errors'
         kept = again if again.rms_after <= current.rms_after * (1 + 1e-3) else replace(current, profile=None)
         current = replace(kept, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
-    return SimulationRefinement(current, steps, rankings)
+    return SimulationRefinement(current, steps, rankings, precise)
 
 
 def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, current: PolishResult,

@@ -75,8 +75,24 @@ BOUND_SNAP = 1e-9
 """A parameter this close to one of its bounds is reported at the bound (the solver keeps
 its iterates strictly inside, e.g. a delay of 1e-10 for 0)."""
 
+REPAIR = 2.0
+"""A profile point whose simulation RMS is more than this many times its neighbour's
+towards the best is fitted again from that neighbour (a walk that started far from the
+data, e.g. from a runaway gain, leaves stranded fits behind it)."""
+
 FINE = 7
 """Delays of the finer grid around the profile's best point (between its two neighbours)."""
+
+EDGE_RESOLUTION = 0.5
+"""The profile's points around each edge of the delay's interval are at most this share of
+the interval's width apart (:func:`_resolve_edges`; the chord between them, convex
+below it, puts the edge at most about a sixteenth of the width inside)."""
+EDGE_EXCESS = 4.0
+"""... and the outside one's squared error exceeds the bound by at most this many times the
+bound's own margin over the least (a quadratic profile's point half a width past the edge:
+3; a point far above it is a steep rise the chord misplaces)."""
+BISECTIONS = 3
+"""Points added at most at each edge of the delay's interval (the gap shrinks 8-fold)."""
 
 INPUT_NOISE_DRAWS = 8
 """Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
@@ -248,6 +264,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     profile = None
     if points:
         points[level.parameters["tau"]] = (level.rms_after, level)
+        _resolve_edges(points, best, experiments, coarse_step)
         profile = _interval(points, best)
     return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
 
@@ -257,10 +274,28 @@ def _stride(step: float, experiments: list[Experiment]) -> int:
     return max(1, int(round(step / experiments[0].dt)))
 
 
+def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step: float) -> PolishResult | None:
+    """The profile's fit at the fixed delay ``tau``, started from ``origin`` (a neighbour's
+    fit) and ``states``; where that start's simulation diverges (its estimated gain unstable
+    at this delay), started again from its net model with a small gain
+    (:func:`without_cancelling_gain`).  None when the fit fails."""
+    try:
+        fit = output_error(with_tau(origin, tau), experiments, states, step=step,
+                           max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
+        if not fit.rms_after < DIVERGED and any(estimated_gain(m) for m in origin.models.values()):
+            fit = output_error(with_tau(without_cancelling_gain(origin, every=True), tau), experiments, None,
+                               step=step, max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
+    except CvxidError:
+        return None
+    return fit
+
+
 def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, grid: int) -> dict:
     """Delay -> (simulation RMS, fit) with every other parameter refitted, on ``grid``
     delays across the delay's range walked outwards from the estimate (each fit starts from
-    its neighbour's), then on a finer grid around the best.  Empty without a fed-back delay."""
+    its neighbour's, :func:`_profile_fit`), the stranded ones refitted from their
+    neighbour towards the best (:data:`REPAIR`), then on a finer grid around the best.
+    Empty without a fed-back delay."""
     delay = next(iter(system.specs.values())).delay
     if delay is None or not any(float(m.system().gain) for m in system.models.values()):
         return {}
@@ -272,19 +307,28 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
     def walk(sequence, origin, states):
         for tau in sequence:
             bar.update()
-            try:
-                fit = output_error(with_tau(origin, tau), experiments, states, step=step,
-                                   max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
-            except CvxidError:
+            fit = _profile_fit(origin, tau, experiments, states, step)
+            if fit is None:
                 continue
             points[float(tau)] = (fit.rms_after, fit)
-            origin, states = fit.system, fit.initial
+            if fit.rms_after < DIVERGED:  # (a diverged fit is no start for the next delay)
+                origin, states = fit.system, fit.initial
 
     i = int(np.argmin(np.abs(taus - first)))
     walk(taus[i:], system, initial)
     walk(taus[:i][::-1], system, initial)
     if not points:
         raise CvxidError("the output-error polish failed at every delay of its profile (diverging simulations)")
+    best = min(points, key=lambda t: points[t][0])
+    for side in (-1, 1):  # each point far worse than its neighbour towards the best: again from that neighbour
+        inner = best
+        for tau in sorted((t for t in points if (t - best) * side > 0), key=lambda t: abs(t - best)):
+            if points[tau][0] > REPAIR * points[inner][0]:
+                near = points[inner][1]
+                fit = _profile_fit(near.system, tau, experiments, near.initial, step)
+                if fit is not None and fit.rms_after < points[tau][0]:
+                    points[tau] = (fit.rms_after, fit)
+            inner = tau
     best = min(points, key=lambda t: points[t][0])
     spacing = taus[1] - taus[0] if grid > 1 else 0.0
     fine = np.linspace(max(best - spacing, delay.tau_min), min(best + spacing, delay.tau_max), FINE + 2)[1:-1]
@@ -304,12 +348,8 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
     :math:`\kappa` times as much as the residual says, and the profile's likelihood ratio,
     read in the residual's units, is :math:`\kappa\,\chi^2_1` distributed (to first
     order)."""
-    taus = np.array(sorted(points))
-    rms = np.array([points[t][0] for t in taus])
+    taus, rms, bound, inside = _inside(points, best, level)
     tau = best.parameters["tau"]
-    n_eff = best.effective_rows
-    bound = rms.min() ** 2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / n_eff)
-    inside = np.flatnonzero(rms**2 <= bound)  # (the least point at least)
     fits = [points[t][1].parameters for t in taus[inside]]
     ranges = {name: (min(f[name] for f in fits), max(f[name] for f in fits))
               for name in best.parameters if name != "tau" and all(name in f for f in fits)}
@@ -321,8 +361,45 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
         return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
 
     low, high = crossing(inside[0], inside[0] - 1), crossing(inside[-1], inside[-1] + 1)
-    return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), n_eff, "output_error",
-                        ranges)
+    return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), best.effective_rows,
+                        "output_error", ranges)
+
+
+def _inside(points: dict, best: PolishResult, level: float = 0.95):
+    """The profile's delays and RMS errors in order, the bound on the squared error of
+    :func:`_interval` and the indices of the delays within it."""
+    taus = np.array(sorted(points))
+    rms = np.array([points[t][0] for t in taus])
+    bound = rms.min() ** 2 * (1 + best.input_noise_inflation * chi2.ppf(level, 1) / best.effective_rows)
+    return taus, rms, bound, np.flatnonzero(rms**2 <= bound)  # (the least point at least)
+
+
+def _resolve_edges(points: dict, best: PolishResult, experiments, step: float) -> None:
+    """Add profile points (:func:`_profile_fit`, from the nearest point inside) halfway
+    between each edge of the interval's inside points and its outside neighbour until they
+    are at most :data:`EDGE_RESOLUTION` of the interval's width apart and the outside one
+    at most :data:`EDGE_EXCESS` margins above the bound (at most :data:`BISECTIONS` a
+    side, never closer than two simulation steps): a profile whose points are coarse
+    against its interval reads the edge from a chord, and on a profile flat over a long
+    stretch that ends steeply (a gain that trades with the delay) that chord put the edge
+    next to the estimate, far inside."""
+    shortest = _stride(step, experiments) * experiments[0].dt
+    for side in (-1, 1):
+        for _ in range(BISECTIONS):
+            taus, rms, bound, inside = _inside(points, best)
+            edge = inside[0] if side < 0 else inside[-1]
+            if not 0 <= edge + side < taus.size:
+                break
+            low, high = _interval(points, best).interval
+            gap = abs(taus[edge + side] - taus[edge])
+            close = gap <= EDGE_RESOLUTION * (high - low)
+            if gap < 2 * shortest or close and rms[edge + side] ** 2 - bound <= EDGE_EXCESS * (bound - rms.min() ** 2):
+                break
+            near = points[taus[edge]][1]
+            fit = _profile_fit(near.system, 0.5 * (taus[edge] + taus[edge + side]), experiments, near.initial, step)
+            if fit is None:
+                break
+            points[float(fit.parameters["tau"])] = (fit.rms_after, fit)
 
 
 def output_rms(fitted: IdentifiedModel | IdentifiedSystem, experiments) -> float:
@@ -351,18 +428,25 @@ SMALL_GAIN = 0.1
 """The feedback gain a cancelling fit restarts from, as a share of its net stiffness."""
 
 
+def estimated_gain(model: IdentifiedModel) -> float | None:
+    """The estimated feedback gain of ``model`` when its own signal is a library term too
+    (the delayed column carries minus the gain), else None (a gain given, no delay)."""
+    if model.spec.confounded_signal is None:
+        return None
+    return -model.coefficients.get(model.spec.delayed_term.name, 0.0)
+
+
 def cancelling_gain(model: IdentifiedModel) -> float | None:
     """The estimated feedback gain of ``model`` when it and the coefficient of its own
-    signal nearly cancel (:data:`CANCELLING`; the delayed column carries minus the gain),
-    else None."""
-    signal = model.spec.confounded_signal
-    if signal is None:
+    signal nearly cancel (:data:`CANCELLING`), else None."""
+    gain = estimated_gain(model)
+    if gain is None:
         return None
-    k, gain = model.coefficients.get(signal, 0.0), -model.coefficients.get(model.spec.delayed_term.name, 0.0)
+    k = model.coefficients.get(model.spec.confounded_signal, 0.0)
     return gain if abs(k - gain) < CANCELLING * max(abs(k), abs(gain)) else None
 
 
-def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> IdentifiedSystem:
+def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem, every: bool = False) -> IdentifiedSystem:
     r"""A start for the polish: each equation whose estimated gain and its signal's
     coefficient cancel (:func:`cancelling_gain`) as its net model with a small feedback,
 
@@ -371,11 +455,12 @@ def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem) -> Ident
 
     from :math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x` (:math:`\beta` =
     :data:`SMALL_GAIN`); the delay profile's fits then size the gain at each delay.  Other
-    equations as they are."""
+    equations as they are; with ``every``, every equation whose gain is estimated (the
+    profile's restart where its neighbour's gain makes the simulation diverge)."""
     system = IdentifiedSystem.of(fitted)
     models = {}
     for label, model in system.models.items():
-        gain = cancelling_gain(model)
+        gain = estimated_gain(model) if every else cancelling_gain(model)
         if gain is None:
             models[label] = model
             continue

@@ -124,17 +124,7 @@ class RegressionBuilder:
                     f"(dt = {e.dt:g} s): no delay can be resolved; raise tau_max, or check the time column's units "
                     "(seconds)"
                 )
-            if np.ptp(e.input(model.input)) == 0:
-                raise CvxidError(
-                    f"experiment '{e.name}': input '{model.input}' is constant, so it does not "
-                    "excite the system; identification needs a varying input"
-                )
-            still = [c for c in model.coordinates if np.ptp(e.output(c)) == 0]
-            if still:
-                raise CvxidError(
-                    f"experiment '{e.name}': output '{still[0]}' is constant, so the record holds no motion to "
-                    "identify; check that the spec's [data] output names the measured position"
-                )
+            e.check_signals([model.input], model.coordinates)
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
             first = int(np.searchsorted(e.time, e.time[0] + self.start - 1e-9 * e.dt))  # the delayed signal is measured

@@ -150,13 +150,12 @@ class FitSettings:
     prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
 
 
-def _same_record(folder: Path, table: Table, other: Table) -> bool:
-    """Whether two data tables read the same samples of the same file."""
+def _same_file(folder: Path, table: Table, other: Table) -> bool:
+    """Whether two data tables read the same file."""
     try:
-        same_file = (folder / str(table["file"])).resolve() == (folder / str(other["file"])).resolve()
+        return (folder / str(table["file"])).resolve() == (folder / str(other["file"])).resolve()
     except (KeyError, OSError):
         return False
-    return same_file and all(table.get(k) == other.get(k) for k in ("samples", "fraction"))
 
 
 @dataclass(frozen=True)
@@ -231,17 +230,26 @@ class ProblemSpec:
             return experiment
         return experiment.slice(*part_bounds(experiment.n, table.get("samples"), table.get("fraction"), where))
 
+    def warn_overlap(self, train: Experiment, test: Experiment) -> None:
+        """Warn when ``test``, read from ``train``'s own file, holds samples of ``train``'s
+        part of it: the test figures, and the diagnosis's choices, are then on data the fit
+        saw."""
+        tables = self.data.get("train", {}), self.data.get("test", {})
+        if not _same_file(self.folder, *tables):
+            return
+        shared = np.count_nonzero((test.time >= train.time[0]) & (test.time <= train.time[-1]))
+        if shared:
+            warnings.warn(f"spec: [data.test] reads {100 * shared / test.n:.0f} % of its samples from the part of "
+                          "the same file that [data.train] reads: the test figures (and the diagnosis's choices) "
+                          "are then on data the fit saw; give another record, or split one into parts that do not "
+                          "overlap (samples or fraction)", CvxidWarning, stacklevel=2)
+
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input_column for s in self.equations.values()})
         velocity = table.get("velocity")
         if velocity is None and self.fit.velocity not in VELOCITIES:
             velocity = self.fit.velocity  # [fit] velocity names a measured column
         first = self.coordinates[0]
-        train = self.data.get("train", {})
-        if which == "test" and "file" in train and _same_record(self.folder, table, train):
-            warnings.warn("spec: [data.test] reads the same file and samples as [data.train]: the test figures (and "
-                          "the diagnosis's choices) are then on the data the fit saw; give another record, or split "
-                          "one with samples or fraction", CvxidWarning, stacklevel=3)
         try:
             return self._load(which, table, where, inputs, velocity, first)
         except CvxidError as exc:  # the file's own message, and the spec's table that named it
