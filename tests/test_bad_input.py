@@ -385,14 +385,14 @@ def test_a_test_record_that_is_the_training_record_is_said(tmp_path):
     force = lambda s: 3 * np.sin(2.1 * s) + 2 * np.sin(5.3 * s + 1)
     x, _ = simulate(System((parse_term("x'"), parse_term("x")), np.array([0.5, 6.0]), 1.0, "x"), t, force, 0.3, 0.0)
     np.savetxt(tmp_path / "a.csv", np.column_stack([t, x, force(t)]), delimiter=",", header="t,x,f", comments="")
-    said = "of its samples from the part of the same file that [data.train] reads"
+    said = "from the part of the same file that [data.train] reads"
     for train, test, share in ((None, None, 100), ([0.0, 0.8], [0.5, 1.0], 60), ([0.0, 0.7], [0.7, 1.0], None)):
         parts = [f'file = "a.csv"' + (f"\nfraction = {part}" if part else "") for part in (train, test)]
         (tmp_path / "spec.toml").write_text(f'[data.train]\n{parts[0]}\n[data.test]\n{parts[1]}\n[model.library]\n'
                                             'terms = ["x", "x\'"]\n')
         assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
         warnings = [w for w in json.loads((tmp_path / "out" / "result.json").read_text())["warnings"] if said in w]
-        assert [w.split(" %")[0].split()[-1] for w in warnings] == ([str(share)] if share else []), warnings
+        assert [w.split(" %)")[0].split("(")[-1] for w in warnings] == ([str(share)] if share else []), warnings
 
 
 def _said_of_fits(warn, fit, k_step, ceiling) -> list[str]:

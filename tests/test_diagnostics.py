@@ -10,7 +10,7 @@ from matplotlib import pyplot as plt
 from cvxid import CvxidError, CvxidWarning
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.candidates import with_effect
-from cvxid.diagnosis.compare import compare, compare_system, k_step_prediction, k_step_samples
+from cvxid.diagnosis.compare import Comparison, compare, compare_system, k_step_prediction, k_step_samples
 from cvxid.diagnosis.ranking import Diagnosis, diagnose
 from cvxid.diagnosis.refine import Refinement, refine, refit
 from cvxid.diagnosis.residuals import residuals
@@ -379,3 +379,22 @@ def test_a_hidden_drag_is_added_with_the_gain_free_as_cvxid_init_writes_it(tmp_p
     assert [s["added"] for s in result["refinement"]][:1] == ["quadratic_damping"], result["refinement"]
     assert result["physical"]["x'|x'|"] == pytest.approx(1.0, rel=0.02)
     assert result["physical"]["m"] == pytest.approx(2.0, rel=0.02)
+
+
+@pytest.mark.parametrize("old, new, falls", [
+    ((96.4, 96.4, 98.4), (97.7, 91.7, 97.7), True),   # the outside check's drag: from the estimated start only
+    ((99.3, 90.0, 99.3), (98.5, 95.0, 99.2), True),   # short stretches between gaps: from the record's own start
+    ((98.6, 93.8, 98.7), (98.5, 93.7, 98.6), False),  # every simulation a hair worse
+    ((None, None, 98.0), (90.0, 90.0, 97.0), True),   # the start's free run diverged
+    ((95.0, 95.0, 98.0), (None, None, 97.9), False),  # the candidate's diverged, its prediction worse
+])
+def test_a_simulation_error_falls_when_any_of_the_three_falls(old, new, falls):
+    """The acceptance rule's simulation check: the free run from the estimated start, from the record's own
+    start, or the k-step prediction (a diverged run has an infinite error)."""
+    from cvxid.diagnosis.refine import _improvement
+
+    def comparison(fits):
+        fit, record, ahead = fits
+        return {"x": Comparison(np.zeros(3), np.zeros(3), None, fit, None, 100, ahead, record_fit_percent=record)}
+
+    assert (_improvement(comparison(old), comparison(new)) > 1) == falls

@@ -132,3 +132,25 @@ def test_coulomb_friction_is_the_same_in_the_python_integrator(level):
     a, _ = simulate(compiled, t, force, 0.3, 0.0)
     b, _ = simulate(python, t, force, 0.3, 0.0)
     np.testing.assert_allclose(a, b, atol=1e-12)
+
+
+def test_a_batch_of_starts_runs_as_the_same_starts_one_at_a_time():
+    """The initial-state search simulates its Jacobian's starts in one batch: each column must be the run from
+    that start alone (two coupled equations, three starts)."""
+    from cvxid.simulate import CoupledSystem, Equation, simulate_coupled
+
+    def terms(*names):
+        return tuple(parse_term(n, ("x", "y")) for n in names)
+
+    equations = (Equation("x", 1.0, terms("x'", "x", "y"), (0.3, 4.0, -1.0), delay_gain=0.5),
+                 Equation("y", 2.0, terms("y'", "y", "x"), (0.2, 3.0, -1.0), input_gain=-1.0))
+    system = CoupledSystem(equations, "x", 0.1)
+    t = np.arange(2001) * 1e-3
+    force = lambda s: np.sin(2.3 * s) + 0.5 * np.sin(7.1 * s)  # noqa: E731
+    x0, v0 = {"x": np.array([0.0, 0.2, -0.1]), "y": np.array([0.1, 0.0, 0.3])}, {"x": np.zeros(3), "y": np.ones(3)}
+    batch, _ = simulate_coupled(system, t, force, x0, v0)
+    for b in range(3):
+        alone, _ = simulate_coupled(system, t, force, {c: x0[c][b] for c in x0}, {c: v0[c][b] for c in v0})
+        for c in ("x", "y"):
+            assert batch[c].shape == (t.size, 3) and alone[c].shape == (t.size,)
+            np.testing.assert_allclose(batch[c][:, b], alone[c], rtol=0, atol=1e-12)

@@ -332,9 +332,10 @@ def _warn_quiet_test(out: RunResult) -> None:
         if c.ceiling_percent is not None and c.ceiling_percent < QUIET:
             where = "" if len(out.comparisons) == 1 else f" ('{label}')"
             warnings.warn(
-                f"the test record's output{where} barely moves above its noise: a perfect model would fit only "
-                f"{c.ceiling_percent:.1f} % of it, so its figures, and the diagnosis's choices made on it, rest on "
-                "little; give a test record in which the system moves (excited as the training record is)",
+                f"the test record's output{where} barely moves above its noise (the noise is over a tenth of its "
+                f"spread): a perfect model would fit only {c.ceiling_percent:.1f} % of it, so its figures, and the "
+                "diagnosis's choices made on it, rest on little; give a test record with more motion (or less "
+                "noise)",
                 CvxidWarning, stacklevel=2)
 
 

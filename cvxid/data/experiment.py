@@ -183,12 +183,15 @@ class Experiment:
     def check_signals(self, inputs, outputs) -> None:
         """Refuse a record whose input is constant (nothing excites the system: a free decay
         too) or whose output is constant (no motion to identify)."""
+        def constant(v):  # (NaN samples, gaps, do not count)
+            return np.all(np.isnan(v)) or np.nanmax(v) == np.nanmin(v)
+
         for name in inputs:
-            if np.ptp(self.input(name)) == 0:
+            if constant(self.input(name)):
                 raise CvxidError(f"experiment '{self.name}': input '{name}' is constant, so it does not excite the "
                                  "system; identification needs a varying input")
         for name in outputs:
-            if np.ptp(self.output(name)) == 0:
+            if constant(self.output(name)):
                 raise CvxidError(f"experiment '{self.name}': output '{name}' is constant, so the record holds no "
                                  "motion to identify; check that the spec's [data] output names the measured position")
 

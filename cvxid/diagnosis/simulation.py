@@ -71,9 +71,10 @@ floor 1e-3)."""
 ITERATIONS = 50
 """Iterations of the polish with a candidate added (from the polished model)."""
 PRECISION = 1e-6
-"""A test record's free-run error below this share of its outputs' spread (RMS) is at the
-data's numerical precision (a noise-free record written with nine digits: 4e-9), where
-any term lowers it by chance: nothing is tried there."""
+"""A test record's free-run error (RMS) below this share of its output's spread (the least
+of a coupled record's coordinates) is at the data's numerical precision (a noise-free
+record written with nine digits: 4e-9), where any term lowers it by chance: nothing is
+tried there."""
 
 
 @dataclass(frozen=True)
@@ -223,7 +224,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     the standard errors' alone."""
     current, steps, rankings = polished, [], []
     before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
-    spread = np.sqrt(np.mean([np.nanvar(test.output(c)) for c in polished.system.coordinates]))
+    spread = min(np.nanstd(test.output(c)) for c in polished.system.coordinates)  # (each coordinate's, at least)
     precise = bool(before is not None and np.sqrt(np.mean(before**2)) < PRECISION * spread)
     while before is not None and not precise and len(steps) < max_steps:
         system = current.system

@@ -283,7 +283,7 @@ def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step
         fit = output_error(with_tau(origin, tau), experiments, states, step=step,
                            max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
         if not fit.rms_after < DIVERGED and any(estimated_gain(m) for m in origin.models.values()):
-            fit = output_error(with_tau(without_cancelling_gain(origin, every=True), tau), experiments, None,
+            fit = output_error(without_cancelling_gain(with_tau(origin, tau), every=True), experiments, None,
                                step=step, max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
     except CvxidError:
         return None
@@ -328,7 +328,8 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
                 fit = _profile_fit(near.system, tau, experiments, near.initial, step)
                 if fit is not None and fit.rms_after < points[tau][0]:
                     points[tau] = (fit.rms_after, fit)
-            inner = tau
+            if points[tau][0] < DIVERGED:  # (a diverged point is no start, nor a measure, for the next)
+                inner = tau
     best = min(points, key=lambda t: points[t][0])
     spacing = taus[1] - taus[0] if grid > 1 else 0.0
     fine = np.linspace(max(best - spacing, delay.tau_min), min(best + spacing, delay.tau_max), FINE + 2)[1:-1]
@@ -430,7 +431,8 @@ SMALL_GAIN = 0.1
 
 def estimated_gain(model: IdentifiedModel) -> float | None:
     """The estimated feedback gain of ``model`` when its own signal is a library term too
-    (the delayed column carries minus the gain), else None (a gain given, no delay)."""
+    (the delayed column carries minus the gain), else None: no delay, a gain given, or a
+    fed-back signal that is no library term (whose gain then trades with no coefficient)."""
     if model.spec.confounded_signal is None:
         return None
     return -model.coefficients.get(model.spec.delayed_term.name, 0.0)

@@ -239,10 +239,10 @@ class ProblemSpec:
             return
         shared = np.count_nonzero((test.time >= train.time[0]) & (test.time <= train.time[-1]))
         if shared:
-            warnings.warn(f"spec: [data.test] reads {100 * shared / test.n:.0f} % of its samples from the part of "
-                          "the same file that [data.train] reads: the test figures (and the diagnosis's choices) "
-                          "are then on data the fit saw; give another record, or split one into parts that do not "
-                          "overlap (samples or fraction)", CvxidWarning, stacklevel=2)
+            warnings.warn(f"spec: [data.test] reads {shared} of its {test.n} samples ({100 * shared / test.n:.3g} %) "
+                          "from the part of the same file that [data.train] reads: the test figures (and the "
+                          "diagnosis's choices) are then on data the fit saw; give another record, or split one into "
+                          "parts that do not overlap (samples or fraction)", CvxidWarning, stacklevel=2)
 
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input_column for s in self.equations.values()})
