@@ -32,7 +32,8 @@ from cvxid.tools.heldout import draw, identify_drawn
 SAID = {"cancelling gain": "nearly cancel", "gain trades": "is not determined apart from",
         "interval reaches 0": "interval reaches 0", "not determined": "the delay is not determined",
         "no feedback": "the data show no fed-back signal", "raise tau_max": "raise [model.delay] tau_max",
-        "polish worse": "ended with a larger simulation error", "drifts": "drifts away from the test record"}
+        "polish worse": "ended with a larger simulation error", "drifts": "drifts away from the test record",
+        "quiet test": "barely moves above its noise"}
 
 
 def one(seed: int, effect: str, known_gain: bool) -> dict:
