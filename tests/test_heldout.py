@@ -362,15 +362,18 @@ def test_the_delay_profile_threshold_counts_the_input_noise(inflation):
     n_eff, curvature, tau = 1000.0, 50.0, 0.15
     taus = np.linspace(0.05, 0.25, 2001)
     points = {float(t): (float(np.sqrt(1.0 + curvature * (t - tau) ** 2)),
-                         SimpleNamespace(parameters={"tau": float(t), "k": 6.0 + 10.0 * (t - tau)})) for t in taus}
+                         SimpleNamespace(parameters={"tau": float(t), "k": 6.0 + 10.0 * (t - tau)},
+                                         standard_errors={"tau": 0.0, "k": 0.01})) for t in taus}
     best = SimpleNamespace(parameters={"tau": tau, "k": 6.0}, effective_rows=n_eff, rms_after=1.0,
                            input_noise_inflation=inflation)
     profile = _interval(points, best)
     low, high = profile.interval
     half = np.sqrt(inflation * chi2.ppf(0.95, 1) / n_eff / curvature)
     assert low == pytest.approx(tau - half, rel=1e-4) and high == pytest.approx(tau + half, rel=1e-4)
-    # a parameter that trades with the delay: its refitted values over the kept delays
-    assert profile.ranges["k"] == pytest.approx((6.0 - 10 * half, 6.0 + 10 * half), abs=1e-3)
+    # a parameter that trades with the delay: its refitted values over the kept delays, each with its own
+    # interval at that delay (the union of the conditional intervals)
+    assert profile.ranges["k"] == pytest.approx((6.0 - 10 * half - 1.96 * 0.01, 6.0 + 10 * half + 1.96 * 0.01),
+                                                abs=1e-3)
 
 
 def test_intervals_walk_the_valley_of_a_free_gain(tmp_path):

@@ -48,7 +48,7 @@ from typing import Sequence
 import numpy as np
 from scipy.interpolate import CubicSpline
 from scipy.optimize import least_squares
-from scipy.stats import chi2
+from scipy.stats import chi2, norm
 
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
@@ -161,11 +161,13 @@ class PolishResult:
 
         * the delay: the hull of that and of the profile's interval (every delay whose
           refitted simulation error is not significantly worse);
-        * every other parameter: the hull of that and of its refitted values at those
-          delays, the profile's projection.  Where the delay trades with a parameter (a
-          free gain against the stiffness, a delay against a damping) the local standard
-          error sees one point of a long valley and its interval can miss the truth by
-          many standard errors; the profile walks the valley."""
+        * every other parameter: the hull of that and of its interval at each of those
+          delays (refitted there, its standard error with the delay held), the profile's
+          projection.  Where the delay trades with a parameter (a free gain against the
+          stiffness, a delay against a damping) the local standard error sees one point of
+          a long valley and its interval can miss the truth by many standard errors; the
+          profile walks the valley, and at each delay the parameters that trade with one
+          another (a free gain with the stiffness) keep their own spread."""
         value, se = self.parameters[name], self.standard_errors[name]
         low, high = value - z * se, value + z * se
         if self.profile is not None:  # (a standard error that is NaN leaves the profile's part)
@@ -351,9 +353,16 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
     order)."""
     taus, rms, bound, inside = _inside(points, best, level)
     tau = best.parameters["tau"]
-    fits = [points[t][1].parameters for t in taus[inside]]
-    ranges = {name: (min(f[name] for f in fits), max(f[name] for f in fits))
-              for name in best.parameters if name != "tau" and all(name in f for f in fits)}
+    fits = [points[t][1] for t in taus[inside]]
+    z = float(norm.ppf(0.5 + level / 2))
+
+    def spread(fit, name):  # (a standard error that is not finite leaves the value)
+        se = fit.standard_errors.get(name, 0.0)
+        return z * se if np.isfinite(se) else 0.0
+
+    ranges = {name: (min(f.parameters[name] - spread(f, name) for f in fits),
+                     max(f.parameters[name] + spread(f, name) for f in fits))
+              for name in best.parameters if name != "tau" and all(name in f.parameters for f in fits)}
 
     def crossing(i, j):  # from inside point i towards outside neighbour j
         if j < 0 or j >= taus.size:
