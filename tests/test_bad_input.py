@@ -436,3 +436,25 @@ def test_a_test_record_that_barely_moves_above_its_noise_is_said(ceiling, warned
     assert bool(said) == warned, said
     if warned:
         assert f"a perfect model would fit only {ceiling:.1f} %" in said[0] and "give a test record" in said[0]
+
+
+def test_a_run_whose_test_record_barely_moves_above_its_noise_says_so(tmp_path):
+    """End to end: a test record whose noise is a third of its spread (a perfect model fits about 70 % of it)
+    gets the quiet record's warning in result.json; the same record with little noise does not."""
+    import json
+
+    from cvxid.app.cli import main
+
+    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+
+    for noise, warned in ((0.1, True), (0.001, False)):
+        test = TEST_SIMULATED.replace("noise = { output = 0.001, input = 0.0 }",
+                                      f"noise = {{ output = {noise}, input = 0.0 }}")
+        (tmp_path / "spec.toml").write_text('name = "quiet"\n[truth]\nmass = 1.0\n'
+                                            'coefficients = { "x\'" = 0.4, "x" = 6.0 }\n' + TRAIN_SIMULATED + "\n"
+                                            + test + '\n[model.library]\nterms = ["x", "x\'"]\n'
+                                            '[fit]\nestimator = "lstsq"\n')
+        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+        result = json.loads((tmp_path / "out" / "result.json").read_text())
+        said = [w for w in result["warnings"] if "barely moves above its noise" in w]
+        assert bool(said) == warned, (result["test_fit_percent_noise_ceiling"], result["warnings"])

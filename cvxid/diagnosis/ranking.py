@@ -48,6 +48,13 @@ COLLINEAR = 0.9
 """Candidates whose orthogonalised contributions correlate above this form one group."""
 
 
+def by_fit(fits: dict[str, float | None]) -> list[str]:
+    """The candidates of ``fits`` (candidate -> free-run fit %, None when its run diverged),
+    the best fit first and the diverged last."""
+    return sorted(fits, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf,
+                  reverse=True)
+
+
 @dataclass
 class Diagnosis:
     """Candidate effects ranked by how much of the residual they explain."""
@@ -74,7 +81,7 @@ class Diagnosis:
         """This diagnosis with collinear rivals decided by their test free-run fits
         (``fits``: rival -> fit %, the mean over coordinates; None when its free run
         diverged): a ``free_run_fit`` column, and the best rival first."""
-        best = max(fits, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf)
+        best = by_fit(fits)[0]
         ranking = self.ranking.assign(free_run_fit=pd.Series({g: np.nan if f is None else f for g, f in fits.items()},
                                                              dtype=float))
         ranking = pd.concat([ranking.loc[[best]], ranking.drop(index=best)])

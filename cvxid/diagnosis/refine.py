@@ -27,7 +27,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
 from cvxid.diagnosis.candidates import default_candidates, lacks_delay, missing, with_candidate, with_input_delay
 from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
-from cvxid.diagnosis.ranking import Diagnosis, builders_for, diagnose, feedback_builders
+from cvxid.diagnosis.ranking import Diagnosis, builders_for, by_fit, diagnose, feedback_builders
 from cvxid.diagnosis.residuals import residuals
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
@@ -277,14 +277,13 @@ def refine(
             or lacking and {g, best} == {"delay", "input_delay"})]
         tried = {g: _with_candidate(system, g, dx, train, *rows_for(g), selection) for g in rivals}
         compared = {g: compare_system(m, test) for g, m in tried.items()}
+        fits = {g: mean_fit(c) for g, c in compared.items()}
         if len(rivals) > 1:
-            diagnoses[-1] = dx = dx.decided({g: mean_fit(c) for g, c in compared.items()})
+            diagnoses[-1] = dx = dx.decided(fits)
         # the best rival first; one the rule refuses gives way to the next (a quadratic damping whose
         # refit simulates worse than its cubic rival's may still be the one whose errors fall)
-        fits = {g: mean_fit(c) for g, c in compared.items()}
         refusal = None
-        for best in sorted(tried, key=lambda g: fits[g] if fits[g] is not None and np.isfinite(fits[g]) else -np.inf,
-                           reverse=True):
+        for best in by_fit(fits):
             rows = rows_for(best)
             # (the model's test error: that of the last accepted step on the same rows, else computed)
             before = steps[-1].test_mse_after if steps and rows[1] is test_rows else _test_mse(system, rows[1])
