@@ -39,7 +39,9 @@ share (a fit read to 0.01 % needs 1e-4; the solver's default 1e-8 spent twice th
 simulations for digits no comparison reads)."""
 
 STEP = 1e-6
-"""The relative step of the forward differences in the start (of at least 1e-6)."""
+"""The relative step of the forward differences in the start, of at least this share of
+the coordinate's measured spread (a floor of 1 in the data's units was a step as large as
+the state itself in data written in micrometres)."""
 
 DIVERGED_RESIDUAL = 1e3
 """The normalised residual of a trial start whose simulation diverges (a wall, not a NaN)."""
@@ -105,13 +107,14 @@ def estimate_initial_state(simulate: Callable[[State], dict[str, np.ndarray]],
 
     def jacobian(p: np.ndarray) -> np.ndarray:
         """Forward differences, every column in one batch (a batch that diverges: one at a time)."""
-        steps = STEP * np.maximum(1.0, np.abs(p))
+        steps = STEP * np.maximum(floors, np.abs(p))
         P = p[:, None] + np.column_stack([np.zeros(p.size), np.diag(steps)])
         R = residuals(P)
         if np.all(R[:, 1:] == DIVERGED_RESIDUAL):
             R = np.column_stack([residual(q) for q in P.T])
         return (R[:, 1:] - R[:, :1]) / steps
 
+    floors = np.repeat([scale[c] for c in coords], 2)  # (a position's spread, and its velocity's floor too)
     p0 = np.array([v for c in coords for v in guess[c]], dtype=float)
     start = residual(p0)
     if np.all(start == DIVERGED_RESIDUAL):

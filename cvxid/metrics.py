@@ -16,8 +16,16 @@ from scipy.signal import welch
 from scipy.stats import chi2
 
 
-SEGMENT = 4096
-"""Samples per Welch segment of the spectra below."""
+SEGMENT_SHARE = 0.5
+"""Each Welch segment of the spectra below spans this share of the record (three
+half-overlapped segments): their resolution, two bins per record length, is the same in
+the record's own time whatever its sample rate.  (A fixed 4,096 samples resolved 0.24 Hz
+at 1 kHz and 4.9 Hz at 20 kHz: an outside check's plant of 0.36 Hz, sampled at 20 kHz,
+got a band edge of 9.8 Hz and windows 20 times too short, with intervals missing the
+truth.)"""
+MAX_SEGMENT = 1 << 20
+"""The longest Welch segment (samples): longer records are averaged over more segments,
+in the memory of one chunk (:data:`CHUNK_SEGMENTS`)."""
 CHUNK_SEGMENTS = 256
 """Welch segments averaged a chunk of the record at a time (scipy holds every segment's
 spectrum at once: 10^7 samples took about 0.3 GB)."""
@@ -45,7 +53,7 @@ def _spectrum(y: np.ndarray, fs: float) -> tuple[np.ndarray, np.ndarray, float]:
     density, from the median of the upper half (robust to a signal there) divided by a
     white bin's median-to-mean ratio (:math:`\chi^2` with the bins' degrees of freedom:
     ln 2 for one segment)."""
-    segment = min(y.size, SEGMENT)
+    segment = int(min(y.size, MAX_SEGMENT, max(16, SEGMENT_SHARE * y.size)))
     f, pxx = _welch(y - np.mean(y), fs, segment)
     averaged = 2 * max(1, (y.size - segment) // (segment // 2) + 1)  # degrees of freedom of each bin
     return f, pxx, float(np.median(pxx[f.size // 2:]) / (chi2.median(averaged) / averaged))

@@ -326,12 +326,13 @@ def test_a_long_records_spectrum_is_averaged_a_chunk_at_a_time_with_the_same_seg
     once) is scipy's on the whole record: the same segments, the same mean."""
     from scipy.signal import welch
 
-    from cvxid.metrics import CHUNK_SEGMENTS, SEGMENT, _welch
+    from cvxid.metrics import CHUNK_SEGMENTS, _welch
 
-    n = 3 * CHUNK_SEGMENTS * SEGMENT // 2 + 777  # three chunks and a partial one
+    segment = 4096
+    n = 3 * CHUNK_SEGMENTS * segment // 2 + 777  # three chunks and a partial one
     y = rng.standard_normal(n) + np.sin(0.01 * np.arange(n))
-    f, pxx = welch(y, fs=2.0, nperseg=SEGMENT)
-    f_chunked, pxx_chunked = _welch(y, 2.0, SEGMENT)
+    f, pxx = welch(y, fs=2.0, nperseg=segment)
+    f_chunked, pxx_chunked = _welch(y, 2.0, segment)
     assert np.array_equal(f, f_chunked) and np.allclose(pxx_chunked, pxx, rtol=1e-12, atol=0)
 
 

@@ -1,5 +1,6 @@
 """Compare, residuals, diagnose, add and refit — on data with a hidden effect."""
 
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -9,7 +10,7 @@ from matplotlib import pyplot as plt
 
 from cvxid import CvxidError, CvxidWarning
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.candidates import with_effect
+from cvxid.diagnosis.candidates import feedback_bound, with_effect
 from cvxid.diagnosis.compare import Comparison, compare, compare_system, k_step_prediction, k_step_samples
 from cvxid.diagnosis.ranking import Diagnosis, diagnose
 from cvxid.diagnosis.refine import Refinement, refine, refit
@@ -252,7 +253,7 @@ def test_k_step_windows_never_read_the_input_beyond_the_record():
     train, test = experiments(None)
     model = refit(linear_model(), train, ["x''", "x", "x'"], None)
     t = test.time
-    k = k_step_samples(test.dt)
+    k = k_step_samples(test, ["x"])
     assert (t.size - 1 - int(np.searchsorted(t, t[0] + model.tau))) % k  # the last window overruns the record
     # a force that ends in a steep cubic: held at its last value it is harmless, extrapolated
     # by the spline for the rest of the window it drives the state past 1e8
@@ -324,21 +325,28 @@ def test_a_candidate_the_model_spans_explains_nothing():
     assert 0 < _explained(both, Q, r)[1] < 1  # the other column still counts
 
 
-def test_the_fed_back_delay_is_left_out_with_a_word_where_no_delay_fits_the_records():
-    """Records timed in milliseconds (a sample step of 1, longer than the delays searched)
-    and records cut by gaps into stretches of 0.35 s: the candidate was offered by default
-    and the diagnosis stopped with a builder's error (a stranger's review).  Now the first
-    leaves it out, saying why, and the second searches the delay up to a quarter of a
-    stretch."""
+def test_the_fed_back_delay_is_searched_in_the_records_time_or_left_out_with_a_word():
+    """Records timed in milliseconds: the candidate searches the same share of the
+    output's period as in seconds (it searched 0 … 0.5 ms, fewer than 5 samples, and was
+    left out), and a loop without feedback does not gain it.  A record sampled as slowly
+    as the delays searched leaves it out, saying why; records cut by gaps into stretches
+    of 0.35 s search the delay up to a quarter of a stretch (the diagnosis had stopped
+    with a builder's error, a stranger's review)."""
     train, test = experiments(None, gain=0.0)
 
     def scaled(e):
         return Experiment(e.time * 1000, {"x": e.output("x")}, {"f": e.input("f")}, e.name)
 
-    with pytest.warns(CvxidWarning, match="leaves out the fed-back delay: a fed-back delay of up to 0.5 s spans fewer "
-                                          "than 5 samples of 1 s"):
+    assert feedback_bound("x", scaled(train), scaled(test)) == pytest.approx(
+        1000 * feedback_bound("x", train, test), rel=1e-9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CvxidWarning)  # (not left out)
         result = refine(without_delay(scaled(train)), scaled(train), scaled(test))
     assert all(s.added != "delay" for s in result.steps)
+    t = np.arange(400) * 0.5
+    coarse = Experiment(t, {"x": np.sin(0.5 * t)}, {"f": np.cos(0.5 * t)}, "coarse")
+    with pytest.raises(CvxidError, match=r"a fed-back delay of up to 1.5\d s spans fewer than 5 samples of 0.5 s: name it"):
+        feedback_bound("x", coarse)
 
     def gappy(e):
         x = e.output("x").copy()

@@ -3,6 +3,7 @@ into another run's folder says so."""
 
 import json
 import os
+import re
 
 import pytest
 
@@ -107,7 +108,8 @@ def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):
     (tmp_path / "spec.toml").write_text(spec_text(SIMULATED.replace("seed = 1", "seed = 17")))
     assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--profile"]) == 0
     out = capsys.readouterr().out.split("where the seconds went")[1]
-    rows = {line[:42].strip(): float(line[42:].split()[0]) for line in out.splitlines()[3:] if line.strip()}
+    rows = {name: float(seconds) for name, seconds, *_ in (re.split(r"\s{2,}", line.strip())
+                                                          for line in out.splitlines()[3:] if line.strip())}
     whole = rows.pop("the whole run")
     rows.pop("starting Python, importing cvxid")  # (NaN where /proc is missing)
     assert rows["data (load or simulate the records)"] > 0 and rows["delay profile (convex)"] > 0

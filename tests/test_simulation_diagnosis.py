@@ -176,14 +176,19 @@ def test_intervals_after_the_simulation_stage_are_the_final_models():
     """Outside check: the simulation stage added a Coulomb friction and the input's delay,
     and the intervals still read the first polish's delay profile, of the model without
     them: tau's was the whole range 0.05 ... 0.3, x''s 0.38 ... 0.72.  The final model is
-    polished again (measured: tau 0.1517 in 0.136 ... 0.166, x' 0.402 in 0.383 ... 0.421)."""
+    polished again (measured: tau 0.1517 in 0.136 ... 0.166, x' 0.402 in 0.383 ... 0.421).
+    (Since 2026-11-26 the stage also keeps a cubic damping of 1.4e-5 on this record, its
+    test RMS 0.6 % under the bound: the rule's 5 % level at work on a knife edge that the
+    windows of a finer spectrum tipped.)"""
     import tomllib
 
     from cvxid.app.run import run
     from cvxid.spec.load import parse_problem
 
     result = run(parse_problem(tomllib.loads(LATE), ROOT))
-    assert [(s.added, s.kept) for s in result.simulation_refinement.steps] == [("coulomb", True), ("input_delay", True)]
+    steps = result.simulation_refinement.steps
+    assert [(s.added, s.kept) for s in steps[:2]] == [("coulomb", True), ("input_delay", True)]
+    assert all(abs(result.model.physical[s.term]) < 1e-4 for s in steps[2:] if s.kept)  # (a marginal x'^3)
     low, high = result.to_dict()["tau"]["interval"]
     assert low < 0.15 < high and high - low < 0.05
     low, high = result.polish.physical_interval("x'")

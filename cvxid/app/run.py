@@ -175,7 +175,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
             f"the delay tau = {estimate:.4g} s" + (f" (95 % interval {interval[0]:.4g} … {interval[1]:.4g} s)"
                                                   if interval else "") +
             f" reaches the top of its search range (tau_max = {delay.tau_max:g} s): the true delay may be longer; "
-            "raise [model.delay] tau_max")
+            "raise [model.delay] tau_max" + _stand_ins(out))
     elif estimate <= delay.tau_min + tolerance and delay.tau_min > 0:
         text = (
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
@@ -195,6 +195,19 @@ def _warn_delay_at_bound(out: RunResult) -> None:
             " longer record or one whose forcing reaches the frequencies where the delay shifts the phase")
     if text is not None:
         warnings.warn(text + _added_delay_note(out), CvxidWarning, stacklevel=2)
+
+
+def _stand_ins(out: RunResult) -> str:
+    """For a delay held at the top of its range: the effects the diagnosis added, which may
+    stand in for the longer delay (an outside check's delay of 4 s, searched up to 0.5 s,
+    had a Coulomb friction added beside it), else nothing."""
+    added = [s.term for s in (out.refinement.steps if out.refinement is not None else [])]
+    added += [s.term for s in (out.simulation_refinement.steps if out.simulation_refinement is not None else [])
+              if s.kept]
+    if not added:
+        return ""
+    return (f"; the diagnosis added {', '.join(added)}, which may stand in for the longer delay: run again with the "
+            "longer range before trusting " + ("it" if len(added) == 1 else "them"))
 
 
 def _added_delay_note(out: RunResult) -> str:

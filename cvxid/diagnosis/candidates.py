@@ -28,8 +28,11 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
+import numpy as np
+
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
+from cvxid.metrics import band_edge
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.input_delay import InputDelay, record_bound
@@ -69,7 +72,12 @@ def default_candidates(model: ModelSpec | Mapping[str, ModelSpec]) -> list[str]:
 
 FEEDBACK_TAU_MAX = 0.5
 """The longest fed-back delay the ``delay`` candidate searches (the spec's default
-``tau_max``), at most a quarter of the shortest gap-free stretch of the records."""
+``tau_max``), or :data:`FEEDBACK_PERIODS` of the output's median period when that is
+longer (as ``cvxid init`` writes), at most a quarter of the shortest gap-free stretch of the
+records."""
+FEEDBACK_PERIODS = 1 / 8
+"""The ``delay`` candidate's range in periods of the output's median frequency (a plant 100
+times slower than a second, with a delay of 12 s, was offered 0 … 0.5 s)."""
 FEEDBACK_MIN_SAMPLES = 5
 """The fewest sample steps the ``delay`` candidate's search range must span to be offered."""
 
@@ -81,13 +89,17 @@ def lacks_delay(model: ModelSpec | Mapping[str, ModelSpec]) -> bool:
     return len(specs) == 1 and next(iter(specs.values())).delay is None
 
 
-def feedback_bound(*experiments: Experiment) -> float:
-    """The ``delay`` candidate's ``tau_max``: :data:`FEEDBACK_TAU_MAX`, at most a quarter of
-    the shortest gap-free stretch of ``experiments`` (the measured history of every row);
-    an error when that spans fewer than :data:`FEEDBACK_MIN_SAMPLES` samples (a record
-    sampled as slowly as the delays searched, or cut short by gaps)."""
+def feedback_bound(coordinate: str, *experiments: Experiment) -> float:
+    """The ``delay`` candidate's ``tau_max``: :data:`FEEDBACK_TAU_MAX` or
+    :data:`FEEDBACK_PERIODS` of the median period of ``coordinate``'s output in the first
+    record, the longer, at most a quarter of the shortest gap-free stretch of
+    ``experiments`` (the measured history of every row); an error when that spans fewer
+    than :data:`FEEDBACK_MIN_SAMPLES` samples (a record sampled as slowly as the delays
+    searched, or cut short by gaps)."""
     stretches = [s for e in experiments for s in e.segments()]
-    bound = min(FEEDBACK_TAU_MAX, min(s.duration for s in stretches) / 4)
+    y = experiments[0].output(coordinate)
+    period = 2 * np.pi / band_edge(y[np.isfinite(y)], experiments[0].dt, share=0.5)
+    bound = min(max(FEEDBACK_TAU_MAX, FEEDBACK_PERIODS * period), min(s.duration for s in stretches) / 4)
     step = max(s.dt for s in stretches)
     if bound < FEEDBACK_MIN_SAMPLES * step:
         raise CvxidError(f"a fed-back delay of up to {bound:.3g} s spans fewer than {FEEDBACK_MIN_SAMPLES} samples "
@@ -103,7 +115,7 @@ def with_feedback_delay(model: ModelSpec | Mapping[str, ModelSpec], *experiments
     if not lacks_delay(specs):
         raise CvxidError("a fed-back delay is added to one equation without one")
     (label, spec), = specs.items()
-    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=feedback_bound(*experiments))
+    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=feedback_bound(spec.coordinate, *experiments))
     return {label: replace(spec, delay=delay)}
 
 

@@ -38,6 +38,7 @@ from cvxid.diagnosis.candidates import (Candidate, candidates as candidates_of, 
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
+from cvxid.regression.windows import Windows, resolve_window, usable_seconds
 from cvxid.identify.profile import profile_delay
 from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
@@ -126,8 +127,13 @@ def feedback_builders(specs: dict[str, ModelSpec], train: Experiment, test: Expe
     (:func:`~cvxid.diagnosis.candidates.with_feedback_delay`): their rows start where the
     delay's measured history does, and their windows may differ, so a model without a delay
     is scored against the candidate on these rows, never across the two."""
-    return builders_for(with_feedback_delay(specs, *[e for e in (train, test) if e is not None]), train, test,
-                        velocity, window)
+    records = [e for e in (train, test) if e is not None]
+    fed = with_feedback_delay(specs, *records)
+    model = next(iter(fed.values()))
+    seconds = window.seconds if isinstance(window, Windows) else window
+    if window == "auto" or isinstance(seconds, (int, float)) and seconds > usable_seconds(model, records):
+        window = resolve_window("auto", model, records)  # windows that fit every record after the delay's history
+    return builders_for(fed, train, test, velocity, window)
 
 
 def diagnose(

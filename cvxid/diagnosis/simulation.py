@@ -51,9 +51,11 @@ from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, d
 from cvxid.diagnosis.compare import compare_system
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.identify.output_error import PolishResult, linearisation, output_error, polish, residual
+from cvxid.identify.output_error import (PolishResult, linearisation, output_error, polish, residual, typical_size,
+                                         typical_states)
 from cvxid.identify.profile import effective_rows
 from cvxid.identify.score import block_score_gain
+from cvxid.metrics import band_edge
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged
@@ -65,9 +67,12 @@ SEED = 1e-30
 """The added candidate's starting coefficient (zero, but kept in the simulated model so
 that the polish moves it)."""
 STEP = 1e-8
-"""The candidate's coefficient (or input delay, seconds) in the forward difference of its
-score (the polish's own step, :data:`~cvxid.identify.output_error.JACOBIAN_STEP` times its
-floor 1e-3)."""
+"""The candidate's coefficient in the forward difference of its score, as a share of its
+natural size (the equation's force per unit of the term on the measured states,
+:func:`~cvxid.identify.output_error.typical_states`), or the input's delay as a share of
+the period at the output's band edge: the polish's own step
+(:data:`~cvxid.identify.output_error.JACOBIAN_STEP` times its floor).  (A step of 1e-8 in
+the data's units scored a hidden cubic stiffness 9.1 in metres and 0 in micrometres.)"""
 ITERATIONS = 50
 """Iterations of the polish with a candidate added (from the polished model)."""
 PRECISION = 1e-6
@@ -145,8 +150,9 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
         try:  # a late input reads a spline of the whole record: its own residual at 0 is the base
             base = residual(_with_candidate(system, candidate, train, 0.0), train, initial) \
                 if name == "input_delay" else r
-            columns = [(residual(_with_candidate(system, candidate, train, STEP, label), train, initial) - base) / STEP
-                       for label in _coefficients(candidate)]
+            steps = [_step(system, candidate, train, label) for label in _coefficients(candidate)]
+            columns = [(residual(_with_candidate(system, candidate, train, h, label), train, initial) - base) / h
+                       for label, h in zip(_coefficients(candidate), steps)]
         except SimulationDiverged:
             continue
         gain, steps = block_score_gain(r, J, np.column_stack(columns))
@@ -183,6 +189,17 @@ def _coefficients(candidate: Candidate) -> tuple[str | None, ...]:
     """The equations whose own coefficient of ``candidate`` the score perturbs one by one;
     ``(None,)`` for the one parameter an input delay shares between the equations."""
     return (None,) if candidate.reestimated else candidate.equations
+
+
+def _step(system: IdentifiedSystem, candidate: Candidate, train: Experiment, equation: str | None) -> float:
+    """The forward-difference step of ``candidate``'s coefficient in ``equation`` (its
+    first for an input's delay): :data:`STEP` of its natural size in ``train``'s units."""
+    if candidate.name == "input_delay":
+        edge = max(band_edge(y[np.isfinite(y)], train.dt) for y in map(train.output, system.coordinates))
+        return STEP * 2 * np.pi / edge
+    states = typical_states(train, 0, system.coordinates)
+    force = float(np.std(system.specs[equation or candidate.equations[0]].received_input(train))) or 1.0
+    return STEP * force / typical_size(candidate.term.evaluate(states))
 
 
 def _with_candidate(system: IdentifiedSystem, candidate: Candidate, train: Experiment, value: float,

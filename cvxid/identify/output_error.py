@@ -47,6 +47,7 @@ from typing import Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
 from scipy.stats import chi2, norm
 
@@ -54,7 +55,8 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
-from cvxid.metrics import noise_level
+from cvxid.metrics import band_edge, noise_level
+from cvxid.model.symbols import velocity_symbol
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
@@ -64,6 +66,19 @@ from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integ
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
+GRADIENT_TOLERANCE = 1e-8
+"""The solver's gradient test (scipy's ``gtol``, absolute: in the squared units of the
+residual) on residuals divided by the power of two nearest the outputs' spread: in
+micrometres the absolute test stopped every fit at its start.  (Divided by the spread
+itself, the residuals' rounding moved the fits' paths at ordinary scales: a coupled
+system's fit with a candidate added stopped at 6 times its noise level; scaling the
+tolerance instead fell below the machine's epsilon, which scipy disables.)"""
+STEP_FLOOR = 1e-3
+"""The smallest size a parameter's finite-difference step is relative to, as a share of
+the parameter's natural size in the data's units (:func:`typical_states`): a state's
+spread, a coefficient's force per unit of its term, a delay's period at the output's band
+edge.  (An absolute floor of 1e-3 left a coefficient that starts at 0 unmoved in data
+written in micrometres, and a delay near 0 at the round-off of a slow plant's.)"""
 GRID = 21
 """Delays of the output-error profile across ``[tau_min, tau_max]`` (then a finer grid
 around its best point).  The simulation error has local minima in :math:`\tau`, and with
@@ -80,6 +95,14 @@ REPAIR = 2.0
 towards the best is fitted again from that neighbour (a walk that started far from the
 data, e.g. from a runaway gain, leaves stranded fits behind it)."""
 
+MIN_COMPARED = 2000
+"""The fewest samples the coarse fits (the delay profile, the stepwise search) compare:
+their step of about ``coarse_step`` seconds is a cost cap for a densely sampled record,
+not a time scale of the plant, and in a plant 100 times faster than a second (0.12 s
+records at 100 kHz) it kept 120 samples, the intervals four times wider; 1,000 times
+faster, 12 samples and every profile fit diverged.  (5,000 made the stepwise search's
+ranking fits, on twice the step, compare every sample of an 8 s record at 1 kHz instead of
+every second: slower, and another path on a tuning system.)"""
 FINE = 7
 """Delays of the finer grid around the profile's best point (between its two neighbours)."""
 
@@ -271,9 +294,37 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
 
 
+SMOOTHING_PERIODS = 0.05
+"""The moving average that :func:`typical_states` differentiates spans this share of the
+period at the output's band edge (a scale of the velocity, not an estimate of it)."""
+
+
+def typical_states(experiment: Experiment, start: int, coordinates) -> dict[str, np.ndarray]:
+    """Every coordinate's measured position, and the slope of its moving average over
+    :data:`SMOOTHING_PERIODS` of its band edge's period, from sample ``start`` on: the
+    states the parameters' natural sizes are read from (a few passes over the record:
+    a Savitzky–Golay velocity with its noise-adapted window took 10 s on 192,000 samples
+    at 20 kHz)."""
+    states = {}
+    for c in coordinates:
+        y = experiment.output(c)[start:]
+        finite = np.where(np.isfinite(y), y, np.nanmean(y))
+        width = SMOOTHING_PERIODS * 2 * np.pi / band_edge(finite, experiment.dt) / experiment.dt
+        smooth = uniform_filter1d(finite, max(1, min(int(round(width)), finite.size)))
+        states[c], states[velocity_symbol(c)] = finite, np.gradient(smooth, experiment.dt)
+    return states
+
+
+def typical_size(values) -> float:
+    """The root mean square of ``values``, 1 where it is 0 or not finite (no size to read)."""
+    rms = float(np.sqrt(np.mean(np.square(np.broadcast_to(values, np.shape(values) or (1,))))))
+    return rms if np.isfinite(rms) and rms > 0 else 1.0
+
+
 def _stride(step: float, experiments: list[Experiment]) -> int:
-    """Samples per simulation step of about ``step`` (at least 1)."""
-    return max(1, int(round(step / experiments[0].dt)))
+    """Samples per simulation step of about ``step``, at least 1, and at most what leaves
+    :data:`MIN_COMPARED` samples of the records to compare."""
+    return max(1, min(int(round(step / experiments[0].dt)), sum(e.n for e in experiments) // MIN_COMPARED))
 
 
 def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step: float) -> PolishResult | None:
@@ -523,7 +574,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     central = [problem.names.index(n) for n in ("tau", "tau_u") if n in problem.names]
 
     def jac(theta, relative=JACOBIAN_STEP):  # forward differences, central in the delay
-        h = relative * np.maximum(np.abs(theta), 1e-3)
+        h = relative * np.maximum(np.abs(theta), STEP_FLOOR * problem.natural)
         steps = np.diag(h)
         here = cache.get(theta.tobytes())  # the solver asks at the point it has just evaluated
         if here is not None and not problem.same_steps(theta, theta - steps[central]):
@@ -540,19 +591,22 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
         return J
 
     before = float(np.sqrt(np.mean(fun(problem.start) ** 2)))
-    sol = least_squares(fun, problem.start, jac=jac, bounds=problem.bounds, method="trf", x_scale="jac",
-                        max_nfev=max_iterations)
+    scale = 2.0 ** np.round(np.log2(problem.scale))  # (a power of two: every iterate the same, in other units)
+    sol = least_squares(lambda theta: fun(theta) / scale, problem.start, jac=lambda theta: jac(theta) / scale,
+                        bounds=problem.bounds, method="trf", x_scale="jac", max_nfev=max_iterations,
+                        gtol=GRADIENT_TOLERANCE)
+    jacobian = sol.jac * scale
     lower, upper = problem.bounds  # the solver stays strictly inside: a bound it reached is the bound
     theta = np.where(np.abs(sol.x - lower) <= BOUND_SNAP, lower, np.where(np.abs(sol.x - upper) <= BOUND_SNAP,
                                                                           upper, sol.x))
     r = fun(theta)
     after = float(np.sqrt(np.mean(r**2)))
     n_eff = effective_rows(r)
-    extra = input_noise_covariance(problem, theta, r, sol.jac) if input_noise else None
-    errors = dict(zip(problem.names, map(float, standard_errors(sol.jac, r, n_eff, extra))))
+    extra = input_noise_covariance(problem, theta, r, jacobian) if input_noise else None
+    errors = dict(zip(problem.names, map(float, standard_errors(jacobian, r, n_eff, extra))))
     inflation, spread, at = 1.0, 1.0, ""
     if input_noise:  # the final fit
-        alone = standard_errors(sol.jac, r, n_eff)  # from the residual alone
+        alone = standard_errors(jacobian, r, n_eff)  # from the residual alone
         if extra is not None and "tau" in problem.names and alone[problem.names.index("tau")] > 0:
             inflation = float((errors["tau"] / alone[problem.names.index("tau")]) ** 2)
         coarse = jac(theta, ROUGH_STEP * JACOBIAN_STEP)  # are its standard errors those of a smooth simulation?
@@ -707,7 +761,7 @@ def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initi
 def _linearise(problem: "_Problem") -> tuple[np.ndarray, np.ndarray]:
     """The residual at ``problem``'s start and its forward-difference Jacobian."""
     theta = problem.start
-    h = JACOBIAN_STEP * np.maximum(np.abs(theta), 1e-3)
+    h = JACOBIAN_STEP * np.maximum(np.abs(theta), STEP_FLOOR * problem.natural)
     r = problem.residuals(np.vstack([theta, theta + np.diag(h)]))
     return r[:, 0], (r[:, 1:] - r[:, :1]) / h
 
@@ -761,8 +815,12 @@ class _Problem:
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         coefficients = system.coefficients
+        measured = [typical_states(e, k, self.coordinates) for e, k in zip(experiments, self.starts)]
+        typical = measured[0]
+        period = 2 * np.pi / max(band_edge(experiments[0].output(c)[self.starts[0]:], experiments[0].dt)
+                                 for c in self.coordinates)
         columns = {}  # system column -> parameter slot
-        names, start, lower, gain_names = [], [], [], []
+        names, start, lower, gain_names, natural, gain_natural = [], [], [], [], [], []
         for label, model in system.models.items():
             spec, s = model.spec, self.systems[label]
             if spec.inertia:
@@ -775,42 +833,54 @@ class _Problem:
                              if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)})
         for label, model in system.models.items():
             spec, s = model.spec, self.systems[label]
+            force = float(np.std(spec.received_input(experiments[0])[self.starts[0]:])) or 1.0
             if spec.inertia:
                 names.append(self._name(label, "m", spec.inertia_term.name))
                 start.append(float(s.mass))
                 lower.append(1e-9)
+                natural.append(abs(float(s.mass)))
             for term, c in zip(s.terms, np.atleast_1d(s.coefficients)):
                 names.append(self._name(label, spec.parameter_name(term.name), term.name))
                 start.append(float(c))
                 lower.append(0.0 if term.name in spec.nonnegative else -np.inf)  # the spec's signs hold
+                natural.append(force / typical_size(term.evaluate(typical)))
             if self.delay is not None and spec.delay.gain is None:
                 gain_names.append(self._name(label, "gain", "gain"))
+                gain_natural.append(force / typical_size(typical[self.delay.coordinate]))
         if self.delay is not None and self.fixed_tau is None:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
             lower.append(self.delay.tau_min)
+            natural.append(period)
         lagged = [m.spec.input_delay for m in system.models.values() if m.spec.input_delay is not None]
         self.input_delay = lagged[0] if lagged else None
         if self.input_delay is not None and self.input_delay.free:
             names.append("tau_u")
             start.append(self.input_delay.value)
             lower.append(self.input_delay.tau_min)
+            natural.append(period)
         self.input_splines = [[CubicSpline(e.time, e.input(m.spec.input)) for m in system.models.values()]
                               for e in experiments] if self.input_delay is not None else None
         if self.delay is not None:
-            for label, name in zip(system.models, gain_names):
+            for label, name, scale in zip(system.models, gain_names, gain_natural):
                 names.append(name)
                 start.append(float(self.systems[label].gain))
                 lower.append(-np.inf)
+                natural.append(scale)
         for i, e in enumerate(experiments):
             k = self.starts[i]
             guess = initial[i] if initial is not None else {  # at the full sample rate
                 c: initial_state(e.time[k:], e.output(c)[k:]) for c in self.coordinates}
+            states = measured[i]
             for c in self.coordinates:
                 names += [self._state(c, i, 0), self._state(c, i, 1)]
                 start += list(guess[c])
                 lower += [-np.inf, -np.inf]
+                natural += [typical_size(states[c]), typical_size(states[velocity_symbol(c)])]
         keep = [i for i, n in enumerate(names) if n not in self.tied]
+        self.natural = np.array(natural, float)[keep]  # each parameter's size in the data's units
+        self.scale = float(np.sqrt(np.mean([np.var(e.output(c)[k:]) for e, k in zip(experiments, self.starts)
+                                            for c in self.coordinates]))) or 1.0  # the outputs' spread
         self.names = [names[i] for i in keep]
         self.state_names = {self._state(c, i, o) for c in self.coordinates for i in range(len(experiments))
                             for o in (0, 1)}
