@@ -164,6 +164,16 @@ def fit_percent(y: np.ndarray, yhat: np.ndarray) -> float:
     return float(100 * (1 - np.linalg.norm(y - yhat) / np.linalg.norm(y - np.mean(y))))
 
 
+def band_period(outputs, dt: float, share: float = 0.95) -> float:
+    r"""The period :math:`2\pi/\omega` of the highest :func:`band_edge` among ``outputs``
+    (arrays sampled every ``dt``, their NaN gaps left out), at most the shortest record's
+    length: the time scale the records show, in their own time unit."""
+    finite = [y[np.isfinite(y)] for y in (np.asarray(o, float) for o in outputs)]
+    edge = max(band_edge(y, dt, share) for y in finite)
+    longest = min(y.size for y in finite) * dt
+    return float(min(2 * np.pi / edge, longest)) if edge > 0 else float(longest)
+
+
 def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
     """The angular frequency below which ``share`` of the variance of ``y`` lies, above the
     noise floor (the white noise's mean density, :func:`_spectrum`).  The floor is

@@ -244,29 +244,36 @@ def test_an_interval_of_a_parameter_named_negated_is_in_its_sign(tmp_path):
     assert result["physical"]["k"] == pytest.approx(-6.0, rel=1e-3) and low < result["physical"]["k"] < high < 0
 
 
-CANCELLING_SPEC = """name = "cancelling"
+def delayed_spec(name: str, k: float, gain: float, tau: float, duration: float, dt: float, seed: int,
+                 noise: tuple[float, float], omegas: tuple[float, float, float], tau_max: float, fit: str = "") -> str:
+    """A spec of a simulated ``x'' + 0.6 x' + k x = f + gain x(t - tau)``, the gain estimated,
+    a three-sine force of amplitudes 3, 2 and 1.5 (``noise``: on the output and the input)."""
+    sines = ",\n".join(f'  {{ kind = "sine", amplitude = {a}, omega = {w}, phase = {p} }}'
+                        for a, w, p in zip((3.0, 2.0, 1.5), omegas, (0.0, 1.0, 2.0)))
+    return f"""name = "{name}"
 [truth]
 mass = 1.0
-coefficients = { "x'" = 0.6, "x" = 5.0 }
-delay = { signal = "x", gain = 1.2, tau = 0.12 }
+coefficients = {{ "x'" = 0.6, "x" = {k} }}
+delay = {{ signal = "x", gain = {gain}, tau = {tau} }}
 [data.train.simulate]
-duration = 20.0
-dt = 1e-3
+duration = {duration}
+dt = {dt}
 x0 = 0.3
-seed = 11
-noise = { output = 0.005, input = 0.005 }
+seed = {seed}
+noise = {{ output = {noise[0]}, input = {noise[1]} }}
 input = [
-  { kind = "sine", amplitude = 3.0, omega = 1.3 },
-  { kind = "sine", amplitude = 2.0, omega = 3.1, phase = 1.0 },
-  { kind = "sine", amplitude = 1.5, omega = 5.7, phase = 2.0 },
+{sines},
 ]
 [model.library]
 terms = ["x", "x'"]
 [model.delay]
 signal = "x"
 method = "exact"
-tau_max = 0.4
-"""
+tau_max = {tau_max}
+{fit}"""
+
+
+CANCELLING_SPEC = delayed_spec("cancelling", 5.0, 1.2, 0.12, 20.0, 1e-3, 11, (0.005, 0.005), (1.3, 3.1, 5.7), 0.4)
 
 
 @pytest.mark.slow
@@ -317,29 +324,8 @@ def test_a_profile_walked_from_a_runaway_gain_is_refitted_from_its_good_neighbou
     assert low < 0.06 and high == pytest.approx(0.4) and low <= 0.12 <= high
 
 
-WIDE_RANGE_SPEC = """name = "wide"
-[truth]
-mass = 1.0
-coefficients = { "x'" = 0.6, "x" = 9.0 }
-delay = { signal = "x", gain = 2.25, tau = 0.15 }
-[data.train.simulate]
-duration = 200.0
-dt = 0.01
-x0 = 0.3
-seed = 3
-noise = { output = 0.01, input = 0.0 }
-input = [ { kind = "sine", amplitude = 3.0, omega = 1.7 }, { kind = "sine", amplitude = 2.0, omega = 2.9, phase = 1.0 },
-          { kind = "sine", amplitude = 1.5, omega = 4.3, phase = 2.0 } ]
-[model.library]
-terms = ["x", "x'"]
-[model.delay]
-signal = "x"
-method = "exact"
-tau_max = 20.0
-[fit]
-estimator = "lstsq"
-refine = "output_error"
-"""
+WIDE_RANGE_SPEC = delayed_spec("wide", 9.0, 2.25, 0.15, 200.0, 0.01, 3, (0.01, 0.0), (1.7, 2.9, 4.3), 20.0,
+                               '[fit]\nestimator = "lstsq"\nrefine = "output_error"\n')
 
 
 @pytest.mark.slow

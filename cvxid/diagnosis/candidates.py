@@ -28,11 +28,9 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Mapping, Sequence
 
-import numpy as np
-
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError
-from cvxid.metrics import band_edge
+from cvxid.metrics import band_period
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.equation import ModelSpec
 from cvxid.model.input_delay import InputDelay, record_bound
@@ -97,8 +95,7 @@ def feedback_bound(coordinate: str, *experiments: Experiment) -> float:
     than :data:`FEEDBACK_MIN_SAMPLES` samples (a record sampled as slowly as the delays
     searched, or cut short by gaps)."""
     stretches = [s for e in experiments for s in e.segments()]
-    y = experiments[0].output(coordinate)
-    period = 2 * np.pi / band_edge(y[np.isfinite(y)], experiments[0].dt, share=0.5)
+    period = band_period([experiments[0].output(coordinate)], experiments[0].dt, share=0.5)
     bound = min(max(FEEDBACK_TAU_MAX, FEEDBACK_PERIODS * period), min(s.duration for s in stretches) / 4)
     step = max(s.dt for s in stretches)
     if bound < FEEDBACK_MIN_SAMPLES * step:
@@ -115,7 +112,8 @@ def with_feedback_delay(model: ModelSpec | Mapping[str, ModelSpec], *experiments
     if not lacks_delay(specs):
         raise CvxidError("a fed-back delay is added to one equation without one")
     (label, spec), = specs.items()
-    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact", tau_max=feedback_bound(spec.coordinate, *experiments))
+    delay = DelayedFeedback(spec.coordinate, 0, None, method="exact",
+                            tau_max=feedback_bound(spec.coordinate, *experiments))
     return {label: replace(spec, delay=delay)}
 
 

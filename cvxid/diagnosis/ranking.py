@@ -38,12 +38,12 @@ from cvxid.diagnosis.candidates import (Candidate, candidates as candidates_of, 
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.problem import Problem
-from cvxid.regression.windows import Windows, resolve_window, usable_seconds
 from cvxid.identify.profile import profile_delay
 from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
+from cvxid.regression.windows import Windows, resolve_window, usable_seconds
 
 COLLINEAR = 0.9
 """Candidates whose orthogonalised contributions correlate above this form one group."""

@@ -55,7 +55,7 @@ from cvxid.identify.output_error import (PolishResult, linearisation, output_err
                                          typical_states)
 from cvxid.identify.profile import effective_rows
 from cvxid.identify.score import block_score_gain
-from cvxid.metrics import band_edge
+from cvxid.metrics import band_period
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
 from cvxid.simulate import SimulationDiverged
@@ -146,13 +146,17 @@ def _scores(system: IdentifiedSystem, found: dict[str, Candidate], train: Experi
     _, r, J = linearisation(system, train, initial)
     sigma2 = float(r @ r) / max(r.size - J.shape[1] - 1, 1)
     colour = effective_rows(r) / r.size
+    period = band_period(map(train.output, system.coordinates), train.dt)
+    states = typical_states(train, 0, system.coordinates, period)
     for name, candidate in progress(found.items(), "diagnosis by simulation: score tests", total=len(found)):
         try:  # a late input reads a spline of the whole record: its own residual at 0 is the base
             base = residual(_with_candidate(system, candidate, train, 0.0), train, initial) \
                 if name == "input_delay" else r
-            steps = [_step(system, candidate, train, label) for label in _coefficients(candidate)]
-            columns = [(residual(_with_candidate(system, candidate, train, h, label), train, initial) - base) / h
-                       for label, h in zip(_coefficients(candidate), steps)]
+            columns = []
+            for label in _coefficients(candidate):
+                h = _step(system, candidate, train, label, states, period)
+                moved = residual(_with_candidate(system, candidate, train, h, label), train, initial)
+                columns.append((moved - base) / h)
         except SimulationDiverged:
             continue
         gain, steps = block_score_gain(r, J, np.column_stack(columns))
@@ -191,13 +195,14 @@ def _coefficients(candidate: Candidate) -> tuple[str | None, ...]:
     return (None,) if candidate.reestimated else candidate.equations
 
 
-def _step(system: IdentifiedSystem, candidate: Candidate, train: Experiment, equation: str | None) -> float:
+def _step(system: IdentifiedSystem, candidate: Candidate, train: Experiment, equation: str | None,
+          states: dict[str, np.ndarray], period: float) -> float:
     """The forward-difference step of ``candidate``'s coefficient in ``equation`` (its
-    first for an input's delay): :data:`STEP` of its natural size in ``train``'s units."""
+    first for an input's delay): :data:`STEP` of its natural size in ``train``'s units
+    (``states``: :func:`~cvxid.identify.output_error.typical_states`; ``period``: the
+    record's band period, an input delay's size)."""
     if candidate.name == "input_delay":
-        edge = max(band_edge(y[np.isfinite(y)], train.dt) for y in map(train.output, system.coordinates))
-        return STEP * 2 * np.pi / edge
-    states = typical_states(train, 0, system.coordinates)
+        return STEP * period
     force = float(np.std(system.specs[equation or candidate.equations[0]].received_input(train))) or 1.0
     return STEP * force / typical_size(candidate.term.evaluate(states))
 

@@ -55,7 +55,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
-from cvxid.metrics import band_edge, noise_level
+from cvxid.metrics import band_period, noise_level
 from cvxid.model.symbols import velocity_symbol
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
@@ -76,9 +76,10 @@ tolerance instead fell below the machine's epsilon, which scipy disables.)"""
 STEP_FLOOR = 1e-3
 """The smallest size a parameter's finite-difference step is relative to, as a share of
 the parameter's natural size in the data's units (:func:`typical_states`): a state's
-spread, a coefficient's force per unit of its term, a delay's period at the output's band
-edge.  (An absolute floor of 1e-3 left a coefficient that starts at 0 unmoved in data
-written in micrometres, and a delay near 0 at the round-off of a slow plant's.)"""
+spread, a coefficient's force per unit of its term, a delay's band period
+(:func:`~cvxid.metrics.band_period`).  (An absolute floor of 1e-3 left a coefficient that
+starts at 0 unmoved in data written in micrometres, and a delay near 0 at the round-off of
+a slow plant's.)"""
 GRID = 21
 """Delays of the output-error profile across ``[tau_min, tau_max]`` (then a finer grid
 around its best point).  The simulation error has local minima in :math:`\tau`, and with
@@ -299,25 +300,25 @@ SMOOTHING_PERIODS = 0.05
 period at the output's band edge (a scale of the velocity, not an estimate of it)."""
 
 
-def typical_states(experiment: Experiment, start: int, coordinates) -> dict[str, np.ndarray]:
+def typical_states(experiment: Experiment, start: int, coordinates, period: float) -> dict[str, np.ndarray]:
     """Every coordinate's measured position, and the slope of its moving average over
-    :data:`SMOOTHING_PERIODS` of its band edge's period, from sample ``start`` on: the
-    states the parameters' natural sizes are read from (a few passes over the record:
-    a Savitzky–Golay velocity with its noise-adapted window took 10 s on 192,000 samples
-    at 20 kHz)."""
+    :data:`SMOOTHING_PERIODS` of ``period`` (the record's :func:`~cvxid.metrics.band_period`),
+    from sample ``start`` on: the states the parameters' natural sizes are read from (two
+    passes over the record: a Savitzky–Golay velocity with its noise-adapted window took
+    10 s on 192,000 samples at 20 kHz)."""
+    width = max(1, int(round(SMOOTHING_PERIODS * period / experiment.dt)))
     states = {}
     for c in coordinates:
         y = experiment.output(c)[start:]
         finite = np.where(np.isfinite(y), y, np.nanmean(y))
-        width = SMOOTHING_PERIODS * 2 * np.pi / band_edge(finite, experiment.dt) / experiment.dt
-        smooth = uniform_filter1d(finite, max(1, min(int(round(width)), finite.size)))
+        smooth = uniform_filter1d(finite, min(width, finite.size))
         states[c], states[velocity_symbol(c)] = finite, np.gradient(smooth, experiment.dt)
     return states
 
 
 def typical_size(values) -> float:
     """The root mean square of ``values``, 1 where it is 0 or not finite (no size to read)."""
-    rms = float(np.sqrt(np.mean(np.square(np.broadcast_to(values, np.shape(values) or (1,))))))
+    rms = float(np.sqrt(np.mean(np.square(values))))
     return rms if np.isfinite(rms) and rms > 0 else 1.0
 
 
@@ -815,10 +816,10 @@ class _Problem:
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         coefficients = system.coefficients
-        measured = [typical_states(e, k, self.coordinates) for e, k in zip(experiments, self.starts)]
-        typical = measured[0]
-        period = 2 * np.pi / max(band_edge(experiments[0].output(c)[self.starts[0]:], experiments[0].dt)
-                                 for c in self.coordinates)
+        periods = [band_period([e.output(c)[k:] for c in self.coordinates], e.dt)
+                   for e, k in zip(experiments, self.starts)]
+        measured = [typical_states(e, k, self.coordinates, p) for e, k, p in zip(experiments, self.starts, periods)]
+        typical, period = measured[0], periods[0]
         columns = {}  # system column -> parameter slot
         names, start, lower, gain_names, natural, gain_natural = [], [], [], [], [], []
         for label, model in system.models.items():
