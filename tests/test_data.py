@@ -234,3 +234,17 @@ def test_a_csv_separator_is_the_one_that_splits_every_row_alike(tmp_path):
         force = "force, N" if "name" in name else "force"
         assert list(columns) == ["t", "x", force], (name, list(columns))
         assert np.allclose(columns["x"], np.round(x, 4)) and np.allclose(columns[force], -np.round(x, 4)), name
+
+
+def test_epoch_stamps_that_jitter_by_their_rounding_alone_are_not_resampled():
+    """A fourth outside check: epoch seconds (1.7e9 s, 2.4e-7 s apart in a float) "jittered"
+    by 0.017 % of a 1 ms step; the record was resampled with a warning, and each part cut
+    from the resampled grid was warned about again (the same grid, "largest time shift
+    0 s").  A time on its uniform grid to a few units of its last place is uniform."""
+    t = 1.7e9 + np.arange(4000) * 1e-3
+    assert np.ptp(np.diff(t)) > 1e-6 * 1e-3  # (rounding alone moves the steps beyond UNIFORM_RTOL)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        e = Experiment(t, {"x": np.sin(3 * (t - t[0]))}, {"f": np.cos(t - t[0])})
+        part = e.slice(100, 3000, "part")
+    assert np.array_equal(e.time, t) and part.n == 2900

@@ -127,7 +127,7 @@ def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, heade
 
 @pytest.mark.parametrize("damage, said", [
     (lambda rows: rows[:8], "only 6 samples; at least 20 are needed"),  # (80 % of 8 trains)
-    (lambda rows: np.vstack([rows[:300], rows[299:]]), "time is not strictly increasing at sample 300"),
+    (lambda rows: np.vstack([rows[:300], rows[299:]]), "does not increase from data row 300 to 301"),
     (lambda rows: rows[:0], "the file has 0 data rows"),
     (lambda rows: rows[:1], "the file has 1 data row: nothing to identify"),
     (lambda rows: np.column_stack([rows[:, :2], 0 * rows[:, 2]]), "input 'f' is constant"),  # a free decay
@@ -169,3 +169,82 @@ def test_init_searches_delays_on_the_record_s_own_time_scale(tmp_path, time_unit
     tau_max = spec.model.delay.tau_max
     assert expected[0] <= tau_max <= expected[1], tau_max
     assert tau_max > 0.15 * slow * time_unit  # the delay of the record's system lies inside the range searched
+
+
+def _base_csv(path, header="t,x,f", rows=2000, extra=None):
+    """A small record (t, x, f and ``extra`` columns) written with ``header``."""
+    t = np.arange(rows) * 1e-3
+    columns = [t, np.sin(3 * t), np.cos(7 * t), *(extra or [])]
+    np.savetxt(path, np.column_stack(columns), delimiter=",", header=header, comments="")
+
+
+@pytest.mark.parametrize("arguments, said", [
+    (["--dt", "-1"], "--dt must be the sample step, a positive number of time units, got -1"),
+    (["--dt", "nan"], "--dt must be the sample step, a positive number of time units, got nan"),
+    (["--dt", "0"], "--dt must be the sample step, a positive number of time units, got 0"),
+    (["--time", "t", "--dt", "0.001"], "give the time column (--time t) or the sample step (--dt 0.001), not both"),
+    (["--time", "x"], "the time column 'x' does not increase from data row"),
+])
+def test_init_refuses_a_sample_step_that_is_not_one(tmp_path, capsys, arguments, said):
+    """A fourth outside check: a zero, negative or NaN step, or a time column that does not
+    increase, ended in a ZeroDivisionError or scipy's "sampling frequency must be positive"
+    traceback; --dt beside --time was dropped without a word."""
+    _base_csv(tmp_path / "r.csv")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml"), *arguments]) == 2
+    assert said in capsys.readouterr().err and not (tmp_path / "r.toml").exists()
+
+
+def test_init_names_rounded_epoch_stamps(tmp_path, capsys):
+    """Epoch seconds written with 8 significant digits repeat: a clear error (it divided by
+    a zero step)."""
+    t = 1.7e9 + np.arange(2000) * 1e-3
+    np.savetxt(tmp_path / "r.csv", np.column_stack([t, np.sin(3 * t), np.cos(7 * t)]), delimiter=",",
+               header="t,x,f", comments="", fmt="%.8g")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert "the time column 't' does not increase from data row 1 to 2 (1700000000, then 1700000000)" in \
+        capsys.readouterr().err
+
+
+def test_init_asks_which_input_when_two_columns_are_named_like_one(tmp_path, capsys):
+    """A fourth outside check: with a force f and a reference u, init took u by its rank in
+    its list of names and the run diverged; now it asks."""
+    t = np.arange(2000) * 1e-3
+    _base_csv(tmp_path / "r.csv", "t,x,f,u", extra=[np.sin(0.3 * t)])
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert "the columns f, u are each named like an input: say which one with --input" in capsys.readouterr().err
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml"), "--input", "f"]) == 0
+    assert load_problem(tmp_path / "r.toml").data["train"]["input"] == {"f": "f"}
+
+
+def test_init_refuses_a_file_without_a_header_line(tmp_path, capsys):
+    """A fourth outside check: the first data row became the column names, without a word."""
+    _base_csv(tmp_path / "r.csv", header="")
+    text = (tmp_path / "r.csv").read_text().lstrip("\n")
+    (tmp_path / "r.csv").write_text(text)
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert "is numbers, not column names: add a header line that names the columns" in capsys.readouterr().err
+
+
+def test_init_names_the_row_of_a_bad_cell(tmp_path, capsys):
+    """A fourth outside check: one cell "ERR" made the whole column "not numeric" with no row."""
+    _base_csv(tmp_path / "r.csv")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    lines[7] = lines[7].rsplit(",", 1)[0] + ",ERR"  # the 7th data row's f
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 2
+    assert "f (data row 7: 'ERR')" in capsys.readouterr().err
+
+
+def test_init_loads_missing_samples_as_gaps(tmp_path):
+    """A fourth outside check: a record with empty cells got "load with gaps = true" from
+    init, which had no way to say it and wrote nothing; now it writes the key."""
+    _base_csv(tmp_path / "r.csv")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    for row in range(600, 640):  # 40 samples of x and f lost
+        lines[row] = lines[row].split(",")[0] + ",,"
+    (tmp_path / "r.csv").write_text("\n".join(lines) + "\n")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 0
+    text = (tmp_path / "r.toml").read_text()
+    assert text.count("\ngaps = true") == 2 and "loaded as gaps" in text
+    train = load_problem(tmp_path / "r.toml").experiment("train")
+    assert train.gaps and np.isnan(train.output("x")).sum() == 40 and len(train.segments()) == 2

@@ -32,15 +32,17 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import cancelling_gain, polish
+from cvxid.identify.output_error import cancelling_gain, natural_inertia, polish, typical_spread
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
+from cvxid.metrics import band_period
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
+from cvxid.model.symbols import velocity_symbol
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
 from cvxid.progress import progress
@@ -239,15 +241,25 @@ def _warn_implausible(out: RunResult) -> None:
     its bottom."""
     for label, model in out.system.models.items():
         mass = model.physical.get("m")
-        if model.spec.inertia and mass is not None and not mass > 0:
-            where = "" if len(out.system.models) == 1 else f" of equation '{label}'"
+        where = "" if len(out.system.models) == 1 else f" of equation '{label}'"
+        if model.spec.inertia and mass is not None and not mass >= 0:
             warnings.warn(
-                f"the identified inertia{where} is {mass:.4g}, not positive: no physical system has it (nor can it be "
+                f"the identified inertia{where} is {mass:.4g}, negative: no physical system has it (nor can it be "
                 f"simulated). Constrain it ([model.constraints] nonnegative = [\"{model.spec.inertia_term.name}\"]), "
                 "keep the windowed integrals (window = \"auto\") on long records, or check the data", CvxidWarning,
                 stacklevel=2)
+        elif model.spec.inertia and mass is not None and mass <= INERTIA_AT_BOUND * _natural_inertia(model.spec,
+                                                                                                     out.train):
+            spec = model.spec
+            warnings.warn(
+                f"the identified inertia{where} is {mass:.3g}, at its bound 0: its force is under "
+                f"{INERTIA_AT_BOUND:g} of the input's at the record's fastest motion, so a positive inertia does not "
+                f"fit these data. Check the input's sign (a sensor mounted the other way round: [model] input = "
+                f"\"-{spec.input}\"), that '{spec.input}' is the signal that drives '{spec.coordinate}', and the "
+                "time column's unit", CvxidWarning, stacklevel=2)
     if out.polish is not None:
         _warn_undetermined(out.polish)
+        _warn_negative_damping(out)
     if out.path is None or out.lam is None or out.problem is None:
         return
     candidates = out.problem.penalties > 0
@@ -268,6 +280,19 @@ def _warn_implausible(out: RunResult) -> None:
             stacklevel=2)
 
 
+INERTIA_AT_BOUND = 1e-4
+"""An identified inertia at most this share of its natural size
+(:func:`~cvxid.identify.output_error.natural_inertia`) sits at its bound: the data ask for
+a negative one (an input of the wrong sign, or not the one driving the output)."""
+
+
+def _natural_inertia(spec, train: Experiment) -> float:
+    """The natural size of ``spec``'s inertia on the training record."""
+    output = train.output(spec.coordinate)
+    return natural_inertia(typical_spread(spec.received_input(train)), typical_spread(output),
+                           band_period([output], train.dt))
+
+
 EXPLAINED = 0.5
 """A selection that keeps no candidate is an answer when the listed or kept linear terms
 explain at least this share of the training equation's target (a linear system), and a
@@ -280,6 +305,41 @@ def _explained(out: RunResult) -> float:
     reduced = out.problem.reduced
     c = np.array([out.system.coefficients.get(n, 0.0) for n in out.problem.names])
     return 1.0 - reduced.mse(c * reduced.column_scale / reduced.target_scale) / reduced.target_scale ** 2
+
+
+def _warn_negative_damping(out: RunResult) -> None:
+    """A linear damping whose output-error 95 % interval lies below 0, said aloud: the
+    model feeds energy in at low speeds, which a passive system does not (a real record's
+    damping read -0.036, its interval -0.044 … -0.010, with no word)."""
+    one = len(out.system.models) == 1
+    for label, model in out.system.models.items():
+        spec = model.spec
+        term = velocity_symbol(spec.coordinate)
+        name = spec.parameter_name(term) if one else f"{label}:{term}"
+        if name not in out.polish.parameters or name in out.polish.states:
+            continue
+        low, high = out.polish.physical_interval(name)
+        value = out.polish.parameters[name] * (-1 if out.polish.negated(name) else 1)
+        if high < 0 and _net_damping(model, value) < 0:
+            warnings.warn(
+                f"the damping {name} is {value:.3g} (95 % interval {low:.3g} … {high:.3g}), "
+                "negative: the model feeds energy in at low speeds. A passive system has no such term: constrain it "
+                f"([model.constraints] nonnegative = [\"{term}\"]) or look for the effect it stands in for (a "
+                "friction, a delay, a force the input misses); a driven or controlled system may have it",
+                CvxidWarning, stacklevel=2)
+
+
+def _net_damping(model, damping: float) -> float:
+    r"""The linear damping with the fed-back delay's share: a feedback
+    :math:`b\,x(t - \tau) \approx b\,x - b\tau\,\dot x` on the right-hand side adds
+    :math:`b\tau`, one of the velocity :math:`b\,\dot x(t - \tau)` takes :math:`b` (a real
+    record's damping of -1.50 beside :math:`35.7\,\theta(t - 0.0445)` is +0.09 net)."""
+    delay = model.spec.delay
+    if delay is None or delay.coordinate != model.spec.coordinate:
+        return damping
+    system = model.system()
+    gain, tau = float(system.gain), float(model.tau or 0.0)
+    return damping + gain * tau if delay.derivative == 0 else damping - gain
 
 
 def _warn_undetermined(polish) -> None:

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS
+from cvxid.data.experiment import READERS, first_text
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -48,6 +48,9 @@ class Columns:
     median_period: float = 0.0
     """The period of the output's median frequency (half its variance lies below it, above
     the noise floor: :func:`~cvxid.metrics.band_edge`), in the time column's unit."""
+    gaps: bool = False
+    """Whether the output or the input has missing (empty or NaN) samples: the spec loads
+    them as gaps (``gaps = true``)."""
 
 
 def _numeric(columns: dict) -> dict[str, np.ndarray]:
@@ -69,14 +72,20 @@ def _words(name: str) -> list[str]:
     return [w for w in re.split(r"[^a-z0-9]+", plain) if w]
 
 
-def _named(names, wanted) -> str | None:
-    """The column whose name (or one of its words) comes first in ``wanted``."""
-    for word in wanted:
-        for name in names:
-            words = _words(name)
-            if words == [word] or (len(words) > 1 and word in words and len(word) > 1):
-                return name
-    return None
+def _named(names, wanted, what: str | None = None) -> str | None:
+    """The column whose name (or one of its words) is in ``wanted``; None when none is.
+    Two such columns are an error naming both (``what``: the option that picks one): a
+    file with a force ``f`` and a reference ``u`` took ``u`` by its rank in ``wanted``."""
+    found = [name for name in names if any(_matches(_words(name), word) for word in wanted)]
+    if len(found) > 1 and what is not None:
+        raise CvxidError(f"the columns {', '.join(found)} are each named like an {what}: say which one with --{what}")
+    return min(found, key=lambda n: min(wanted.index(w) for w in wanted if _matches(_words(n), w)), default=None)
+
+
+def _matches(words: list[str], word: str) -> bool:
+    """Whether a column's ``words`` name ``word`` (the whole name, or one of several words
+    longer than a letter)."""
+    return words == [word] or (len(words) > 1 and word in words and len(word) > 1)
 
 
 def spectral_centroid(values: np.ndarray) -> float:
@@ -97,10 +106,12 @@ def spectral_centroid(values: np.ndarray) -> float:
     return float(np.sum(freq * signal) / np.sum(signal)) if signal.sum() > 0 else np.inf
 
 
-def _listing(numeric: dict, dropped: list[str]) -> str:
-    """The file's numeric columns, and those that are not (text, or mostly empty)."""
+def _listing(numeric: dict, dropped: dict) -> str:
+    """The file's numeric columns, and those that are not (text, or mostly empty), each
+    with its first cell that is not a number (``dropped``: name -> values)."""
     text = f"numeric columns: {', '.join(sorted(numeric)) or 'none'}"
-    return text + (f"; not numeric (text, or mostly empty): {', '.join(dropped)}" if dropped else "")
+    return text + (f"; not numeric (text, or mostly empty): "
+                   f"{', '.join(name + first_text(values) for name, values in dropped.items())}" if dropped else "")
 
 
 def detect_columns(columns: dict, time: str | None = None, output: str | None = None, input: str | None = None,
@@ -110,11 +121,15 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if rows < 2:
         raise CvxidError(f"the file has {rows} data row{'s' if rows != 1 else ''}: nothing to identify")
     numeric = _numeric(columns)
-    dropped = [n for n in columns if n not in numeric]
+    dropped = {n: v for n, v in columns.items() if n not in numeric}
     listing = _listing(numeric, dropped)
     for given, what in ((time, "time"), (output, "output"), (input, "input")):
         if given is not None and given not in numeric:
             raise CvxidError(f"--{what} '{given}' is not a numeric column of the file; {listing}")
+    if time is not None and dt is not None:
+        raise CvxidError(f"give the time column (--time {time}) or the sample step (--dt {dt:g}), not both")
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise CvxidError(f"--dt must be the sample step, a positive number of time units, got {dt:g}")
     reasons = []
     if time is None and dt is None:
         time = _named(numeric, TIME_NAMES)
@@ -128,9 +143,9 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         reasons.append(f"time '{time}'")
     others = [n for n in numeric if n != time]
     said = {"output": "given", "input": "given"}
-    if output is None and (found := _named([n for n in others if n != input], OUTPUT_NAMES)):
+    if output is None and (found := _named([n for n in others if n != input], OUTPUT_NAMES, "output")):
         output, said["output"] = found, "by its name"
-    if input is None and (found := _named([n for n in others if n != output], INPUT_NAMES)):
+    if input is None and (found := _named([n for n in others if n != output], INPUT_NAMES, "input")):
         input, said["input"] = found, "by its name"
     rest = [n for n in others if n not in (output, input)]
     if output is None and input is None:
@@ -156,10 +171,19 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     samples = numeric[output].size
     if dt is None:
         t = numeric[time]
+        steps = np.diff(t)
+        if not np.all(steps > 0):  # (NaN steps fail too)
+            row = int(np.argmax(~(steps > 0)))
+            raise CvxidError(f"the time column '{time}' does not increase from data row {row + 1} to {row + 2} "
+                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file, give stamps with enough digits (epoch seconds need "
+                             "more than 10), or give the sample step with --dt instead of a time column")
         dt = float((t[-1] - t[0]) / (t.size - 1))
     y = numeric[output][np.isfinite(numeric[output])]
     median_period = 2 * np.pi / band_edge(y, dt, share=0.5) if y.size > 16 else 0.0
-    return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period))
+    gaps = not (np.isfinite(numeric[output]).all() and np.isfinite(numeric[input]).all())
+    if gaps:
+        reasons.append("missing samples in the output or the input, loaded as gaps")
+    return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps)
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -187,6 +211,9 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
     if fraction:
         lines.append(f"fraction = [{fraction[0]:g}, {fraction[1]:g}]           # the part of the record used here")
     lines.append('faults = "warn"                  # clipped, frozen or outlier samples: "warn", "gap" or "ignore"')
+    if columns.gaps:
+        lines.append("gaps = true                      # missing (empty or NaN) samples: the integrals and the "
+                     "simulations restart after each gap")
     return "\n".join(lines)
 
 

@@ -33,13 +33,25 @@ grid of the mean step, with a warning that says by how much.  Above it the time 
 uniform (a missing sample, a changed rate) and the record is refused."""
 
 
+def first_text(values) -> str:
+    """Where a column that should hold numbers does not: ``" (data row 12001: '-')"``, the
+    first data row (counted from 1) whose cell is not a number, or ``""``."""
+    flat = np.ravel(np.asarray(values, dtype=object))
+    for row, cell in enumerate(flat):
+        try:
+            float(cell)
+        except (TypeError, ValueError):
+            return f" (data row {row + 1}: {str(cell)[:20]!r})"
+    return ""
+
+
 def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> np.ndarray:
     try:
         arr = np.asarray(values, dtype=float)
     except (TypeError, ValueError) as exc:
         raise CvxidError(
-            f"experiment '{experiment}': signal '{name}' is not numeric ({exc}); "
-            "give a 1-D array of numbers"
+            f"experiment '{experiment}': signal '{name}' is not numeric{first_text(values)} ({exc}); "
+            "give a 1-D array of numbers (repair or remove that row; an empty cell reads as a missing sample)"
         ) from None
     arr = np.squeeze(arr)
     if arr.ndim != 1:
@@ -134,7 +146,7 @@ class Experiment:
                 "(e.g. numpy.interp), split it where a sample is missing, or, if the samples were taken "
                 "uniformly and only the time stamps jitter, write the time as t0 + k * dt"
             )
-        if dev > UNIFORM_RTOL:
+        if dev > UNIFORM_RTOL and not _uniform_to_rounding(t):
             t, signals = _resampled(t, signals, dev, self.name)
         object.__setattr__(self, "time", t)
         for group, sigs in signals.items():
@@ -231,6 +243,14 @@ class Experiment:
         return "\n".join(parts)
 
 
+def _uniform_to_rounding(t: np.ndarray) -> bool:
+    """Whether ``t`` lies on its uniform grid to within a few units of its last place: a
+    time far from 0 (epoch seconds: 2.4e-7 s apart) jitters by its rounding alone, and a
+    grid resampled once was resampled, and warned about, again by each part cut from it."""
+    uniform = np.linspace(t[0], t[-1], t.size)
+    return bool(np.max(np.abs(uniform - t)) <= 4 * np.spacing(np.max(np.abs(t[[0, -1]]))))
+
+
 def _resampled(t: np.ndarray, signals: dict, deviation: float, name: str) -> tuple[np.ndarray, dict]:
     """The signals on the uniform grid of the mean step (cubic splines through the recorded
     times; a gap's NaN samples stay NaN), and a warning that says by how much."""
@@ -293,6 +313,10 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
 
     options = {"encoding": "utf-8-sig", **_separator(path)}  # (a byte-order mark is not the first name's)
     head = read(nrows=100, **options)
+    names = [str(c).replace(",", ".") if options.get("decimal") == "," else str(c) for c in head.columns]
+    if all(_numeric(n) or _numeric(re.sub(r"\.\d+$", "", n)) for n in names):  # (pandas renames a repeated one)
+        raise CvxidError(f"{path}: the first line ({', '.join(map(str, head.columns))}) is numbers, not column names: "
+                         "add a header line that names the columns (t,x,f) above the data")
     if len(head) > 1 and not any(pd.api.types.is_numeric_dtype(head[c]) for c in head.columns):
         first = [str(v) for v in head.iloc[0]]
         second = [str(v).replace(",", ".") if options.get("decimal") == "," else str(v) for v in head.iloc[1]]
@@ -419,9 +443,29 @@ def load(
         time, columns = "__time", {**columns, "__time": np.arange(first.size) * float(dt)}
     if samples is not None or fraction is not None:
         used = [time, *outputs.values(), *inputs.values(), *(velocities or {}).values()]
-        a, b = part_bounds(np.size(_pick(columns, next(iter(outputs.values())), what, path)), samples, fraction, path)
-        columns = {**columns, **{c: np.ravel(_pick(columns, c, what, path))[a:b] for c in used}}
+        a, b = part_bounds(_common_length(columns, used, what, path), samples, fraction, path)
+        columns = {**columns, **{c: np.squeeze(columns[c])[a:b] for c in used}}
     return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults)
+
+
+def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what: str, path: Path) -> int:
+    """The samples of the ``used`` columns, which must be 1-D and of one length: a part
+    (``samples``, ``fraction``) is cut at the same samples of every column, and a shorter
+    column would be cut out of step with the others (a clear error instead)."""
+    lengths = {}
+    for name in dict.fromkeys(used):
+        shape = np.shape(np.squeeze(_pick(columns, name, what, path)))
+        if len(shape) != 1:
+            raise CvxidError(f"{path}: {what} '{name}' has shape {np.shape(columns[name])}; give a 1-D array "
+                             "(one value per sample)")
+        lengths[name] = shape[0]
+    first = used[0]
+    for name, n in lengths.items():
+        if n != lengths[first]:
+            raise CvxidError(f"{path}: {what} '{name}' has {n} samples but '{first}' has {lengths[first]}; all "
+                             "signals must have the same length (a part of the record is cut at the same samples "
+                             "of each)")
+    return lengths[first]
 
 
 def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],

@@ -322,6 +322,31 @@ def typical_size(values) -> float:
     return rms if np.isfinite(rms) and rms > 0 else 1.0
 
 
+def typical_spread(values) -> float:
+    """The standard deviation of ``values``, their NaN gaps left out; 1 where it is 0 or
+    not finite (no size to read): an input's natural size."""
+    finite = np.asarray(values, float)
+    finite = finite[np.isfinite(finite)]
+    spread = float(np.std(finite)) if finite.size else 0.0
+    return spread if np.isfinite(spread) and spread > 0 else 1.0
+
+
+def natural_inertia(force: float, position: float, period: float) -> float:
+    r"""An inertia's natural size in the data's units, :math:`\sigma_f / (\omega^2
+    \sigma_x)` with :math:`\omega = 2\pi / T` (``period``: the record's band period,
+    ``force`` and ``position`` the input's and the output's spreads): the inertia whose
+    force at the record's fastest motion is the input's size."""
+    return force * (period / (2 * np.pi)) ** 2 / position
+
+
+INERTIA_FLOOR = 1e-9
+"""The output-error polish's lower bound of an inertia, in :func:`natural_inertia`'s
+units (was 1e-9 in the data's units: a micro-system's true inertia lay below it)."""
+TINY = np.finfo(float).tiny
+"""The least inertia a simulation is given (a tied inertia's product may round below its
+bound)."""
+
+
 def _stride(step: float, experiments: list[Experiment]) -> int:
     """Samples per simulation step of about ``step``, at least 1, and at most what leaves
     :data:`MIN_COMPARED` samples of the records to compare."""
@@ -834,11 +859,12 @@ class _Problem:
                              if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)})
         for label, model in system.models.items():
             spec, s = model.spec, self.systems[label]
-            force = float(np.std(spec.received_input(experiments[0])[self.starts[0]:])) or 1.0
+            force = typical_spread(spec.received_input(experiments[0])[self.starts[0]:])
             if spec.inertia:
                 names.append(self._name(label, "m", spec.inertia_term.name))
                 start.append(float(s.mass))
-                lower.append(1e-9)
+                lower.append(INERTIA_FLOOR * natural_inertia(
+                    force, typical_spread(experiments[0].output(spec.coordinate)[self.starts[0]:]), period))
                 natural.append(abs(float(s.mass)))
             for term, c in zip(s.terms, np.atleast_1d(s.coefficients)):
                 names.append(self._name(label, spec.parameter_name(term.name), term.name))
@@ -880,8 +906,8 @@ class _Problem:
                 natural += [typical_size(states[c]), typical_size(states[velocity_symbol(c)])]
         keep = [i for i, n in enumerate(names) if n not in self.tied]
         self.natural = np.array(natural, float)[keep]  # each parameter's size in the data's units
-        self.scale = float(np.sqrt(np.mean([np.var(e.output(c)[k:]) for e, k in zip(experiments, self.starts)
-                                            for c in self.coordinates]))) or 1.0  # the outputs' spread
+        self.scale = float(np.sqrt(np.mean([typical_spread(e.output(c)[k:]) ** 2 for e, k in
+                                            zip(experiments, self.starts) for c in self.coordinates])))  # spread
         self.names = [names[i] for i in keep]
         self.state_names = {self._state(c, i, o) for c in self.coordinates for i in range(len(experiments))
                             for o in (0, 1)}
@@ -895,7 +921,8 @@ class _Problem:
         # every start inside its bounds (least_squares refuses one outside), and said so
         wanted = np.array(start, float)[keep]
         self.start = np.clip(wanted, lower, upper)
-        moved = [f"{n} = {w:.4g} (set to {s:.4g})" for n, w, s in zip(self.names, wanted, self.start) if w != s]
+        moved = [f"{n} = {w:.4g} (set to {s:.4g})" for n, w, s in zip(self.names, wanted, self.start)
+                 if not np.isclose(w, s, rtol=1e-6, atol=0)]  # (a start at its bound but for rounding: quiet)
         if moved:
             warnings.warn("the output-error polish started outside its bounds: " + ", ".join(moved)
                           + "; the equation-error estimate it starts from is far off (check the model and the data)",
@@ -936,7 +963,7 @@ class _Problem:
         mass, gain, coefs, terms = np.ones((C, B)), np.zeros((C, B)), [], []
         for i, (label, model) in enumerate(self.base.models.items()):
             spec, s = model.spec, self.systems[label]
-            mass[i] = np.maximum(values[self._name(label, "m", spec.inertia_term.name)], 1e-12) if spec.inertia \
+            mass[i] = np.maximum(values[self._name(label, "m", spec.inertia_term.name)], TINY) if spec.inertia \
                 else spec.mass
             coefs += [values[self._name(label, spec.parameter_name(t.name), t.name)] for t in s.terms]
             terms.append(tuple(s.terms))

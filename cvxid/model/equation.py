@@ -25,6 +25,10 @@ from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
 INERTIA, DELAY, LIBRARY, LISTED, LINEAR = "inertia", "delay", "library", "listed", "linear"
 
 
+DELAYED = "(t-tau)"
+"""How the delayed feedback's column names end (``x(t-tau)``)."""
+
+
 @dataclass(frozen=True)
 class Column:
     """One regression column: its term, its group and its L1 weight."""
@@ -93,12 +97,17 @@ class ModelSpec:
     input_delay: InputDelay | None = None
 
     def __post_init__(self):
-        known = set(self.column_names)
+        signed = [n for n in self.column_names if not n.endswith(DELAYED)]
         for name in self.nonnegative:
-            if name not in known:
+            if name.endswith(DELAYED):
+                raise CvxidError(
+                    f"[model.constraints] nonnegative names '{name}', the delayed feedback: its sign is not "
+                    f"constrained (its column carries minus the gain b of + b {name}); give the gain "
+                    "([model.delay] gain = …) if you know it")
+            if name not in signed:
                 raise CvxidError(
                     f"[model.constraints] nonnegative names '{name}', which is not a column of "
-                    f"the model; columns: {', '.join(self.column_names)}"
+                    f"the model; columns: {', '.join(signed)}"
                 )
         for tname in self.names.values():
             parse_term(_bare(tname)[1], self.coordinates)  # a readable term (it may join the model later)

@@ -50,8 +50,11 @@ class Program:
     ops: np.ndarray
     args: np.ndarray
 
-    def evaluate(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> np.ndarray:
-        """The program on arrays (each coordinate's position and velocity)."""
+    def evaluate(self, positions: list[np.ndarray], velocities: list[np.ndarray],
+                 poles: list | None = None) -> np.ndarray:
+        """The program on arrays (each coordinate's position and velocity); ``poles``, when
+        given, receives every divisor and every base of a negative power (where the term
+        is unbounded when they reach 0)."""
         stack = []
         with np.errstate(all="ignore"):
             for op, arg in zip(self.ops, self.args):
@@ -62,11 +65,26 @@ class Program:
                 elif op == VELOCITY:
                     stack.append(velocities[int(arg)])
                 elif op <= POW:
-                    right = stack.pop()
-                    stack.append(BINARY_NUMPY[int(op)](stack.pop(), right))
+                    right, left = stack.pop(), stack.pop()
+                    if poles is not None and (op == DIV or op == POW and np.any(np.asarray(right) < 0)):
+                        poles.append(right if op == DIV else left)
+                    stack.append(BINARY_NUMPY[int(op)](left, right))
                 else:
                     stack.append(UNARY[int(op)](stack.pop()))
         return stack[0]
+
+    def crossing(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> int | None:
+        """The first sample after which a divisor, or the base of a negative power, changes
+        sign or is 0 (the term is unbounded near it); None when none does."""
+        poles = []
+        self.evaluate(positions, velocities, poles)
+        found = []
+        for pole in (p for p in poles if np.ndim(p) == 1):
+            sign = np.sign(pole)
+            changes = np.flatnonzero(sign[:-1] * sign[1:] <= 0)
+            if changes.size:
+                found.append(int(changes[0]))
+        return min(found, default=None)
 
 
 @dataclass(frozen=True)

@@ -30,7 +30,7 @@ from scipy.interpolate import CubicSpline
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.model.equation import ModelSpec
-from cvxid.model.terms import DelayedSignal, InputRate, Term
+from cvxid.model.terms import DelayedSignal, Expression, InputRate, Term
 from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, RestartTransform, WindowedTransform
 from cvxid.regression.memory import check_memory
 from cvxid.regression.regression import Regression
@@ -59,6 +59,28 @@ def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | Non
         return RestartTransform(time, orders, length)
     length = length // 2 * 2 + 1
     return WindowedTransform(time, orders, length, max(1, min((length - 1) // 10, (time.size - length) // ROWS)))
+
+
+POLE_PEAK = 100.0
+"""A term whose divisor crosses 0 is refused when its peak exceeds this many times its
+median magnitude (``1/x`` of a noisy x crossing 0: about 700 at 1 kHz; a bounded quotient,
+``tanh(x)/x``, 1.4)."""
+
+
+def _refuse_pole(term, states, signal: np.ndarray, sample, experiment: str) -> None:
+    """A clear error when ``term`` divides by a quantity that crosses 0 on these samples
+    and peaks there (``sample``: a position in ``signal`` -> the record's sample)."""
+    if not isinstance(term, Expression):
+        return
+    at = term.crossing(states)
+    magnitude = np.abs(signal)
+    if at is None or not magnitude.max(initial=0.0) > POLE_PEAK * np.median(magnitude):
+        return
+    raise CvxidError(
+        f"term '{term.name}' is unbounded on these data: it divides by a quantity that crosses 0 (first after sample "
+        f"{sample(at)} of '{experiment}'), where it peaks at {magnitude.max():.3g} against a median "
+        f"{np.median(magnitude):.3g}; a few samples near each crossing would decide its coefficient. Write it so that "
+        "it is bounded where the state goes (x/(x^2 + 0.01) for 1/x), or drop it")
 
 
 class _Block:
@@ -188,6 +210,9 @@ class RegressionBuilder:
                         f"'{self.experiments[block.segment].name}': a fractional power or square root of a negative "
                         "value, a division by zero, an overflow); write it so that it is defined everywhere the state "
                         "goes, e.g. abs(x)^1.5 for x^1.5")
+                _refuse_pole(term, pieces, signal, lambda at: block.first + (
+                    index.start + at if isinstance(index, slice) else int(index[at])),
+                    self.experiments[block.segment].name)
                 return signal
 
             block.columns[term.name] = block.transform.rows(read, term.regression_order)

@@ -7,6 +7,7 @@ strings are names; nothing in a spec is ever executed.
 
 from __future__ import annotations
 
+import re
 import warnings
 from dataclasses import dataclass, field, replace
 from pathlib import Path
@@ -25,7 +26,7 @@ from cvxid.identify.path import SELECTING, SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
-from cvxid.model.equation import ModelSpec
+from cvxid.model.equation import DELAYED, ModelSpec
 from cvxid.model.library import CATALOGUE, PARAMETERS, Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import Derivative, parse_term
@@ -506,6 +507,10 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     if not coord.isidentifier():
         raise CvxidError(f"spec: [{where}] coordinate = '{coord}' is not a name: use letters, digits and _ (x, "
                          "theta, x1); several coordinates are several [[model.equation]] tables")
+    if coord == str(table.get("input", "f")).lstrip("-"):
+        raise CvxidError(f"spec: [{where}] coordinate = '{coord}' is also the input: the coordinate is the measured "
+                         "output the model explains, the input the force or command that drives it; name each its "
+                         "own (the [data.*] output and input tables map them to the file's columns)")
     coords = (coord, *others)
     lib_t = _table(table, "library", where, {"order", "cross", "extra", "terms", "select", "keep_linear"})
     extra = tuple(_strings(lib_t, "extra", f"{where}.library"))
@@ -577,7 +582,8 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             raise CvxidError(f"spec: [{where}.names] {k} must be a term name string, got {v!r}")
         names[k] = v
     alg = _table(table, "algebraic", where, {"n", "m", "keep_initial_conditions"})
-    nonneg = tuple(parse_term(n, coords).name for n in _strings(cons, "nonnegative", f"{where}.constraints"))
+    nonneg = tuple(re.sub(r"\s+", "", n) if re.sub(r"\s+", "", n).endswith(DELAYED) else parse_term(n, coords).name
+                   for n in _strings(cons, "nonnegative", f"{where}.constraints"))  # (the feedback: refused by name)
     columns = set(library.names) | {coord + "''"}
     for pname, tname in names.items():
         if parse_term(tname.lstrip("- "), coords).name not in columns:
