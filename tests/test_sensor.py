@@ -229,3 +229,16 @@ def test_turning_points_of_a_coarsely_sampled_clean_record_are_no_outliers(seed,
     y[2345] += 0.1 * np.std(x)
     (fault,) = sensor_faults(Experiment(t, {"x": y}, {"f": np.sin(t)}))
     assert fault.kind == "outlier" and fault.samples[2345] and fault.samples.sum() <= 3
+
+
+def test_a_clipped_record_s_noise_is_read_off_its_moving_samples(rng):
+    """A fourth outside check: an output clipped to a third of its peak read a noise
+    ceiling of 100.0 % beside the clipping warnings (its flat stretches' third differences
+    are 0, and they were most of the record); a stretch of equal samples shows no noise."""
+    from cvxid.metrics import noise_ceiling_percent, noise_level
+
+    x, _ = smooth(rng)
+    hard = np.clip(x, *np.quantile(x, [0.3, 0.7]))  # 60 % of the samples at a rail
+    assert noise_level(hard) == pytest.approx(0.001, rel=0.15)
+    assert noise_level(x) == pytest.approx(0.001, rel=0.15)
+    assert noise_ceiling_percent(hard) < 99.9
