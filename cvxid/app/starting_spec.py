@@ -175,8 +175,9 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         if not np.all(steps > 0):  # (NaN steps fail too)
             row = int(np.argmax(~(steps > 0)))
             raise CvxidError(f"the time column '{time}' does not increase from data row {row + 1} to {row + 2} "
-                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file, give stamps with enough digits (epoch seconds need "
-                             "more than 10), or give the sample step with --dt instead of a time column")
+                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file, give stamps with enough "
+                             "digits (epoch seconds need more than 10), or give the sample step with --dt instead "
+                             "of a time column")
         dt = float((t[-1] - t[0]) / (t.size - 1))
     y = numeric[output][np.isfinite(numeric[output])]
     median_period = 2 * np.pi / band_edge(y, dt, share=0.5) if y.size > 16 else 0.0

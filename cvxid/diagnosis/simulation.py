@@ -52,8 +52,7 @@ from cvxid.diagnosis.compare import compare_system
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import (PolishResult, linearisation, output_error, polish, residual, typical_size,
-                                          typical_spread,
-                                         typical_states)
+                                         typical_spread, typical_states)
 from cvxid.identify.profile import effective_rows
 from cvxid.identify.score import block_score_gain
 from cvxid.metrics import band_period
