@@ -529,7 +529,7 @@ def test_an_input_of_the_wrong_sign_names_the_sign(tmp_path, capsys):
 
     from cvxid.app.cli import main
 
-    from cvxid import load_problem
+    from cvxid import load_problem, run
 
     from .conftest import TRAIN_SIMULATED
     from .test_sensor import spec_text
@@ -549,6 +549,9 @@ def test_an_input_of_the_wrong_sign_names_the_sign(tmp_path, capsys):
         assert bool(warned) == said, result["warnings"]
         if said:
             assert 'Check the input\'s sign (a sensor mounted the other way round: [model] input = "-f")' in warned[0]
+            assert "CvxidWarning" not in capsys.readouterr().err  # the CLI prints the warnings once, in its summary
+            with pytest.warns(CvxidWarning, match="at its bound 0"):  # a Python caller gets them as warnings
+                run(tmp_path / "r.toml")  # (a fifth outside check: a notebook user saw none)
         else:
             assert result["physical"]["m"] == pytest.approx(1.0, rel=0.02)  # the truth: x'' + 0.4 x' + 6 x = f + ...
 
@@ -580,3 +583,17 @@ def test_a_sign_on_the_feedback_or_a_coordinate_named_as_the_input_is_explained(
     text = (f'name = "n"\n{TRAIN_SIMULATED}\n[model.library]\nterms = ["x", "x\'"]\n'
             '[model.delay]\nsignal = "x"\nmethod = "exact"\n' + model + "\n")
     assert said in cli_error(tmp_path, capsys, text)
+
+
+def test_the_python_api_names_the_argument_of_the_wrong_type():
+    """A fifth outside check: arrays for Experiment's mappings ended in numpy's "truth
+    value of an array is ambiguous", a list of names for Library in an AttributeError, and
+    nonnegative = "x''" was read letter by letter.  A library also takes term names."""
+    t = np.arange(100) * 0.01
+    with pytest.raises(CvxidError, match=r"outputs must map names to arrays \(\{\"x\": x\}\), got ndarray"):
+        Experiment(t, np.sin(t), np.cos(t))
+    assert Library(["x", "x'", "sign(x')"]).names == Library([parse_term(n) for n in ("x", "x'", "sign(x')")]).names
+    with pytest.raises(CvxidError, match=r"Library takes a list of terms, got one \('x'\)"):
+        Library("x")
+    with pytest.raises(CvxidError, match=r"nonnegative takes a list of column names: \[\"x''\"\]"):
+        Problem.from_arrays(np.column_stack([np.sin(t), t]), np.cos(t), ["x''", "x"], nonnegative="x''")

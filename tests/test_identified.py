@@ -89,3 +89,19 @@ def test_nonlinear_export_simulates_like_cvxid(model):
     nl = model.to_control(8)
     resp = control.input_output_response(nl, t, force, X0=np.zeros(nl.nstates), solve_ivp_kwargs={"rtol": 1e-9, "atol": 1e-11})
     assert np.abs(resp.outputs - ours).max() < 1e-4 * np.abs(ours).max()
+
+
+def test_a_dry_friction_is_left_out_of_the_linearisation_and_said():
+    """A fifth outside check: hidden_friction's model linearised to a damping of 8e5 (the
+    central difference of 0.8 sign(x') with a step of 1e-6), with no word."""
+    from cvxid import CvxidWarning
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+    from cvxid.model.terms import parse_term
+
+    spec = ModelSpec(Library([parse_term(n) for n in ("x", "x'", "sign(x')", "x'|x'|")]))
+    model = IdentifiedModel(spec, {"x''": 1.0, "x": 6.0, "x'": 0.4, "sign(x')": 0.8, "x'|x'|": 0.3})
+    with pytest.warns(CvxidWarning, match=r"sign\(x'\) has no derivative at rest \(a jump at 0\): left out"):
+        tf = model.linearized_tf()
+    assert np.allclose(tf.den[0][0], [1.0, 0.4, 6.0], atol=1e-6)  # x'|x'| has slope 0 at rest: not a jump
+    assert tf.input_labels == ["f"] and tf.output_labels == ["x"]  # as to_nlsys names them

@@ -15,27 +15,20 @@ import threading
 import warnings
 
 from cvxid import __version__
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.parallel import BACKENDS
 from cvxid.progress import set_quiet
 
 
 def _run(args) -> int:
-    from cvxid.app.report import prepare_folder, write_report
-    from cvxid.app.run import run
+    from cvxid.app.report import prepare_folder
 
     if args.out:
         prepare_folder(args.out)  # an unusable --out fails before any work
     spec = _with_engine(args.spec, args.backend, args.scheduler)
-    if args.profile:
-        from cvxid.app.profile import profiled, since_start
-
-        imported = since_start()
-        (result, (path, replaced)), table = profiled(
-            lambda: (r := run(spec), write_report(r, args.out) if args.out else (None, None)), imported)
-    else:
-        result = run(spec)
-        path, replaced = write_report(result, args.out) if args.out else (None, None)  # before printing: a
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", CvxidWarning)  # (run() issues result.warnings: the summary prints them)
+        result, path, replaced, table = _identify_and_report(spec, args)
     print(result.summary())                                                            # closed pipe loses nothing
     if path:
         print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
@@ -43,6 +36,25 @@ def _run(args) -> int:
         print("\nwhere the seconds went (cumulative; nested stages count in each; starting Python is before the run):")
         print(table.to_string(float_format=lambda v: f"{v:.3f}", na_rep="–"))
     return 0
+
+
+def _identify_and_report(spec, args):
+    """``run(spec)`` and its report in ``args.out`` (the report before printing: a closed
+    pipe loses nothing): the result, the result.json path, the earlier run it replaced,
+    and with ``--profile`` where the seconds went."""
+    from cvxid.app.report import write_report
+    from cvxid.app.run import run
+
+    if args.profile:
+        from cvxid.app.profile import profiled, since_start
+
+        imported = since_start()
+        (result, (path, replaced)), table = profiled(
+            lambda: (r := run(spec), write_report(r, args.out) if args.out else (None, None)), imported)
+        return result, path, replaced, table
+    result = run(spec)
+    path, replaced = write_report(result, args.out) if args.out else (None, None)
+    return result, path, replaced, None
 
 
 def _with_engine(spec: str, backend: str | None, scheduler: str | None):

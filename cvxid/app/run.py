@@ -55,7 +55,9 @@ from cvxid.spec.problem import ProblemSpec
 
 
 def run(spec) -> RunResult:
-    """Identify the system of a problem spec (a parsed spec or a path to one)."""
+    """Identify the system of a problem spec (a parsed spec or a path to one).  Its
+    warnings are in ``result.warnings`` (and ``result.json``), and each is issued once to
+    the caller as a :class:`~cvxid.errors.CvxidWarning`."""
     if isinstance(spec, (str, FilePath)):
         spec = load_problem(spec)
     start = time.perf_counter()
@@ -75,6 +77,8 @@ def run(spec) -> RunResult:
     result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)
                                          and not (polished and issubclass(w.category, EquationErrorDelayWarning))))
     result.seconds = time.perf_counter() - start
+    for message in result.warnings:  # to a Python caller too, once each (a notebook shows them; the CLI's summary
+        warnings.warn(message, CvxidWarning, stacklevel=2)  # prints result.warnings and ignores these)
     return result
 
 
@@ -192,9 +196,10 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         text = (
             f"the delay is not determined by these data: its 95 % interval {interval[0]:.4g} … {interval[1]:.4g} s "
             f"spans most of the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} "
-            "s is one point of a flat profile (see delay_profile.png) and the other parameters hold at that delay "
-            "only. " + ("Give the gain if it is known ([model.delay] gain), a" if delay.gain is None else "A") +
-            " longer record or one whose forcing reaches the frequencies where the delay shifts the phase")
+            "s is one point of a flat profile (the report's delay_profile.png shows it) and the other parameters hold "
+            "at that delay only. " + ("Give the gain if it is known ([model.delay] gain), or a" if delay.gain is None
+                                      else "Give a") +
+            " longer record, or one whose forcing reaches the frequencies where the delay shifts the phase")
     if text is not None:
         warnings.warn(text + _added_delay_note(out), CvxidWarning, stacklevel=2)
 

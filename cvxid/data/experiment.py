@@ -109,6 +109,10 @@ class Experiment:
 
     def __post_init__(self) -> None:
         t = _as_signal("time", self.time, self.name)
+        for group, example in (("outputs", '{"x": x}'), ("inputs", '{"f": f}'), ("velocities", '{"x": v}')):
+            if not isinstance(getattr(self, group), Mapping):
+                raise CvxidError(f"experiment '{self.name}': {group} must map names to arrays ({example}), got "
+                                 f"{type(getattr(self, group)).__name__}")
         if not self.outputs:
             raise CvxidError(f"experiment '{self.name}': no output given; name at least one")
         signals = {}

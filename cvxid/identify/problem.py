@@ -91,6 +91,8 @@ class Problem:
         k = len(self.names)
         if self.penalties.shape != (k,) or np.any(self.penalties < 0):
             raise CvxidError(f"weights must be {k} non-negative numbers, one per column")
+        if isinstance(nonnegative, str):  # (read letter by letter it named "unknown column(s) ', '")
+            raise CvxidError(f"nonnegative takes a list of column names: [{nonnegative!r}], not {nonnegative!r}")
         unknown = [n for n in nonnegative if n not in self.names]
         if unknown:
             raise CvxidError(
@@ -110,7 +112,7 @@ class Problem:
         if self.solver != "CLARABEL":
             warnings.warn(
                 f"{self.solver} (a first-order solver) is not accurate on badly scaled regressions like these "
-                "(notes/solvers.md); results are checked, but prefer CLARABEL",
+                "(docs/spec.md, [fit] solver); results are checked, but prefer CLARABEL",
                 CvxidWarning,
                 stacklevel=2,
             )

@@ -26,11 +26,20 @@ from cvxid.model.terms import (
 
 
 class Library:
-    """An ordered, duplicate-free collection of terms."""
+    """An ordered, duplicate-free collection of terms (:class:`Term` objects, or their
+    names as :func:`~cvxid.model.terms.parse_term` reads them: ``Library(["x", "x'",
+    "sign(x')"])``, of the coordinate ``x``)."""
 
-    def __init__(self, terms: Iterable[Term] = ()):
+    def __init__(self, terms: Iterable[Term | str] = ()):
+        if isinstance(terms, (str, Term)):
+            raise CvxidError(f"Library takes a list of terms, got one ({terms!r}): write Library([{terms!r}])")
         seen: dict[str, Term] = {}
         for term in terms:
+            if isinstance(term, str):
+                term = parse_term(term)
+            elif not isinstance(term, Term):
+                raise CvxidError(f"a library's terms are Term objects or their names (\"x^3\", \"sign(x')\"), "
+                                 f"got {term!r}")
             seen.setdefault(term.name, term)
         self.terms: tuple[Term, ...] = tuple(seen.values())
 
