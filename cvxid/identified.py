@@ -153,9 +153,11 @@ class IdentifiedModel:
         return initial_state(experiment.time[k:], experiment.output(self.spec.coordinate)[k:])
 
     def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
-        """Physical parameters, beside the truth when it is known."""
-        phys = self.physical
-        frame = pd.DataFrame({"estimate": pd.Series(phys)})
+        """Physical parameters, beside the truth when it is known: the model's own, and
+        those of the truth it set to 0 (the candidates a selection dropped are left out: 12
+        rows of "0 NaN" in 17 of a selected library; :attr:`coefficients` holds them)."""
+        phys = {k: v for k, v in self.physical.items() if v != 0 or k in (truth or {})}
+        frame = pd.DataFrame({"estimate": pd.Series(phys, dtype=float)})
         if truth:
             frame["truth"] = pd.Series({k: truth.get(k, np.nan) for k in phys})
             frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])

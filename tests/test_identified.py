@@ -105,3 +105,15 @@ def test_a_dry_friction_is_left_out_of_the_linearisation_and_said():
         tf = model.linearized_tf()
     assert np.allclose(tf.den[0][0], [1.0, 0.4, 6.0], atol=1e-6)  # x'|x'| has slope 0 at rest: not a jump
     assert tf.input_labels == ["f"] and tf.output_labels == ["x"]  # as to_nlsys names them
+
+
+def test_the_table_lists_the_model_s_terms_and_the_truth_s_not_every_dropped_candidate():
+    """A fifth outside check: a selected library's table held 12 rows of "0 NaN" in 17."""
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+
+    spec = ModelSpec(Library(["x", "x'", "x^2", "x^3", "x'^3"]))
+    model = IdentifiedModel(spec, {"x''": 1.0, "x": 6.0, "x'": 0.4, "x^2": 0.0, "x^3": 0.0, "x'^3": 0.0})
+    assert list(model.table().index) == ["m", "x", "x'"]
+    table = model.table({"m": 1.0, "x": 6.0, "x'": 0.4, "x^3": 2.0})  # a true term the model set to 0: shown
+    assert list(table.index) == ["m", "x", "x'", "x^3"] and table.loc["x^3", "error %"] == -100
