@@ -125,13 +125,12 @@ def test_output_error_polish_reaches_the_noise_floor():
 def test_a_start_outside_the_bounds_is_projected_and_said():
     """An equation-error start with a negative mass (seen on held-out records) used to end
     in scipy's "Initial guess is outside of provided bounds"; the start is projected into
-    the bounds (the mass 1e-9 of its natural size, tau into [tau_min, tau_max]) and the
-    user is told."""
+    the bounds (mass 1e-9, tau into [tau_min, tau_max]) and the user is told."""
     exp = record(4, 0.001, duration=3.0)
     wrong = {"x''": -0.3, "x'": 0.4, "x": 4.0, "x^3": 1.5}
     from cvxid.identify.output_error import output_error
 
-    with pytest.warns(CvxidWarning, match=r"started outside its bounds: m = -0.3 \(set to [0-9.]+e-1[01]\).*tau = 0.9"):
+    with pytest.warns(CvxidWarning, match=r"started outside its bounds: m = -0.3 \(set to 1e-09\).*tau = 0.9"):
         fit = output_error(IdentifiedModel(model(), wrong, tau=0.9), exp, step=2e-3, max_iterations=5)
     assert fit.parameters["m"] > 0 and 0 <= fit.parameters["tau"] <= model().delay.tau_max
 
