@@ -298,6 +298,9 @@ class IdentifiedSystem:
         """The system of one identified equation (a system is itself)."""
         if isinstance(model, IdentifiedSystem):
             return model
+        if not isinstance(model, IdentifiedModel):
+            raise CvxidError(f"an identified model is needed (a run's result.model, IdentifiedModel.load(path)), got "
+                             f"{type(model).__name__}")
         return cls({model.spec.coordinate: model}, model.tau, info=dict(model.info))
 
     @property

@@ -597,3 +597,12 @@ def test_the_python_api_names_the_argument_of_the_wrong_type():
         Library("x")
     with pytest.raises(CvxidError, match=r"nonnegative takes a list of column names: \[\"x''\"\]"):
         Problem.from_arrays(np.column_stack([np.sin(t), t]), np.cos(t), ["x''", "x"], nonnegative="x''")
+    import cvxid
+
+    record = Experiment(t, {"x": np.sin(t)}, {"f": np.cos(t)})
+    with pytest.raises(CvxidError, match="an identified model is needed .* got ModelSpec"):
+        cvxid.compare(MODEL, record)
+    problem = Problem.from_arrays(np.column_stack([np.sin(t), t]), np.cos(t), ["a", "b"])
+    assert cvxid.Path.compute(problem, 1e-3).lambdas.tolist() == [1e-3]  # (numpy's AxisError before)
+    with pytest.raises(CvxidError, match="validate must be a function of the coefficients"):
+        cvxid.Path.compute(problem, [1e-3, 1e-2], validate=record)

@@ -101,9 +101,12 @@ class Path:
         folds: int | None = None,
     ) -> "Path":
         """Sweep ``lambdas`` (validated by ``validate`` or by blocked ``folds``-fold CV)."""
-        lambdas = np.sort(np.asarray(lambdas, dtype=float))[::-1]
-        if lambdas.size == 0 or not np.all(np.isfinite(lambdas)) or np.any(lambdas < 0):
-            raise CvxidError("lambdas must be a non-empty list of finite numbers >= 0")
+        lambdas = np.sort(np.atleast_1d(np.asarray(lambdas, dtype=float)))[::-1]
+        if lambdas.ndim != 1 or lambdas.size == 0 or not np.all(np.isfinite(lambdas)) or np.any(lambdas < 0):
+            raise CvxidError("lambdas must be a non-empty list of finite numbers >= 0 (np.logspace(-6, 0, 30))")
+        if validate is not None and not callable(validate):
+            raise CvxidError(f"validate must be a function of the coefficients (a test Regression's .residual), got "
+                             f"{type(validate).__name__}")
         if estimator not in ESTIMATORS:
             raise CvxidError(f"unknown estimator '{estimator}'; use one of {', '.join(ESTIMATORS)}")
         if folds is not None:
