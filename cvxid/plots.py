@@ -15,8 +15,8 @@ def path_figure(path, selected: float | None = None):
     fig, (top, bottom) = plt.subplots(2, 1, figsize=(8, 7), sharex=True)
     lam = path.lambdas
     scaled = np.array([f.scaled for f in path.fits])
-    for j, name in enumerate(path.names):
-        top.plot(lam, scaled[:, j], label=name, lw=1.2)
+    for j, name in enumerate(path.names):  # (past ten terms the colours repeat: the line style tells them apart)
+        top.plot(lam, scaled[:, j], label=name, lw=1.2, ls=("-", "--", ":", "-.")[j // 10 % 4])
     top.set_xscale("log")
     if lam.max() >= 100 * lam.min():  # the decades are labelled; minor ticks on this shared axis cost 0.2 s
         top.xaxis.set_minor_locator(NullLocator())

@@ -606,3 +606,18 @@ def test_the_python_api_names_the_argument_of_the_wrong_type():
     assert cvxid.Path.compute(problem, 1e-3).lambdas.tolist() == [1e-3]  # (numpy's AxisError before)
     with pytest.raises(CvxidError, match="validate must be a function of the coefficients"):
         cvxid.Path.compute(problem, [1e-3, 1e-2], validate=record)
+
+
+def test_results_print_what_they_hold(rng):
+    """A fifth outside check: a Fit, a Choice, Residuals and a PolishResult printed raw
+    arrays or the whole path; each now says what it is and its numbers by name."""
+    from cvxid.diagnosis.residuals import Residuals
+    from cvxid.identify.selection import Selection
+
+    P = np.column_stack([np.sin(T), np.cos(T), np.sin(3 * T)])
+    prob = Problem.from_arrays(P, P @ [1.0, 0.5, 0.0] + 0.01 * rng.standard_normal(T.size), ["a", "b", "c"])
+    choice = Selection("lasso", rule="min").choose(prob, folds=5)
+    assert repr(choice).startswith("Choice: lambda = ") and "keeps 2 of 3 columns: a, b" in repr(choice)
+    assert "2 of 3 columns" in repr(choice.fit) and re.search(r"a = 0.99\d\d, b = 0.50", repr(choice.fit))
+    r = Residuals(T, np.full(T.size, 0.5), np.sin(T), np.cos(T), np.cos(T))
+    assert repr(r).startswith("Residuals: the equation error on 500 samples") and "RMS 0.5 " in repr(r)

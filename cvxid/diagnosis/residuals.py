@@ -40,6 +40,12 @@ class Residuals:
     velocity: np.ndarray
     input: np.ndarray
 
+    def __repr__(self) -> str:
+        rms = float(np.sqrt(np.mean(np.square(self.residual))))
+        return (f"Residuals: the equation error on {self.residual.size:,} samples ({self.time[0]:g} … "
+                f"{self.time[-1]:g} s), RMS {rms:.4g} (force units); .binned(\"velocity\"), .correlations(), "
+                ".plot()")
+
     def plot(self, bins: int = 21, title: str | None = None):
         """The residual in time and binned against position and velocity."""
         from cvxid.plots import residual_figure

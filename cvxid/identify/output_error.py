@@ -46,6 +46,7 @@ from dataclasses import dataclass, replace
 from typing import Sequence
 
 import numpy as np
+import pandas as pd
 from scipy.interpolate import CubicSpline
 from scipy.ndimage import uniform_filter1d
 from scipy.optimize import least_squares
@@ -152,6 +153,17 @@ class PolishResult:
     input_noise_inflation: float = 1.0  # the delay's variance with the inputs' noise / from the residual alone
     # (both from the solver's Jacobian, whichever standard error is reported)
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
+
+    def __repr__(self) -> str:
+        shown = [n for n in self.parameters if n not in self.states]
+        frame = pd.DataFrame({"estimate": [self.parameters[n] for n in shown],
+                              "std error": [self.standard_errors.get(n, np.nan) for n in shown],
+                              "95 % low": [self.interval(n)[0] for n in shown],
+                              "95 % high": [self.interval(n)[1] for n in shown]}, index=pd.Index(shown, name="parameter"))
+        return (f"PolishResult (output-error polish): simulation RMS {self.rms_before:.4g} -> {self.rms_after:.4g} "
+                f"in {self.iterations} iterations, {self.seconds:.1f} s"
+                + ("" if self.profile is None else ", the delay profiled") + "\n"
+                + frame.to_string(float_format=lambda v: f"{v:.5g}"))
 
     @property
     def model(self) -> IdentifiedModel:

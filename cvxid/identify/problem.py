@@ -67,6 +67,11 @@ class Fit:
     seconds: float
     names: tuple[str, ...] = field(default=())
 
+    def __repr__(self) -> str:
+        names = self.names or tuple(f"c{i}" for i in range(len(self.coefficients)))
+        terms = ", ".join(f"{n} = {c:.4g}" for n, c, k in zip(names, self.coefficients, self.support) if k)
+        return (f"Fit at lambda = {self.lam:.3g} ({self.solver}, {self.status}): {int(np.sum(self.support))} of "
+                f"{len(names)} columns, training MSE {self.train_mse:.4g}: {terms or 'none'}")
 
 
 class Problem:

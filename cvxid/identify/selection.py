@@ -140,6 +140,12 @@ class Choice:
     reported: Fit
     stability: Stability | None = None
 
+    def __repr__(self) -> str:
+        kept = [n for n, k in zip(self.path.names, self.keep) if k]
+        text = (f"Choice: lambda = {self.fit.lam:.3g} on a path of {len(self.path.lambdas)}, keeps {len(kept)} of "
+                f"{len(self.path.names)} columns: {', '.join(kept)} (.path, .fit, .reported, .stability)")
+        return text + ("" if self.stability is None else "\n" + repr(self.stability))
+
 
 @dataclass(frozen=True)
 class Selection:
