@@ -248,3 +248,21 @@ def test_epoch_stamps_that_jitter_by_their_rounding_alone_are_not_resampled():
         e = Experiment(t, {"x": np.sin(3 * (t - t[0]))}, {"f": np.cos(t - t[0])})
         part = e.slice(100, 3000, "part")
     assert np.array_equal(e.time, t) and part.n == 2900
+
+
+def test_rows_missing_from_a_uniform_record_become_gaps_when_gaps_are_on():
+    """A fourth outside check: a record with 100 rows lost (its time jumps by 101 steps)
+    was refused with "split it where a sample is missing", which a spec cannot do (it takes
+    one training record); with gaps = true the rows are NaN gaps on the full grid."""
+    t = np.arange(3000) * 1e-3
+    keep = np.r_[0:1200, 1300:3000]
+    x, f = np.sin(3 * t), np.cos(7 * t)
+    with pytest.raises(CvxidError, match=r"the time jumps by whole steps \(100 rows missing\): load it with gaps = "
+                                         r"true and they become gaps"):
+        Experiment(t[keep], {"x": x[keep]}, {"f": f[keep]})
+    e = Experiment(t[keep], {"x": x[keep]}, {"f": f[keep]}, gaps=True)
+    assert e.n == 3000 and np.allclose(e.time, t) and np.isnan(e.output("x")[1200:1300]).all()
+    assert np.array_equal(e.output("x")[keep], x[keep]) and [s.n for s in e.segments()] == [1200, 1700]
+    off = np.r_[t[:1200], t[1300:] + 3e-4]  # a jump of 100.3 steps: not whole, refused as before
+    with pytest.raises(CvxidError, match=r"time is not uniformly sampled \(step .*% off; up to 1 %"):
+        Experiment(off, {"x": x[keep]}, {"f": f[keep]}, gaps=True)

@@ -248,3 +248,16 @@ def test_init_loads_missing_samples_as_gaps(tmp_path):
     assert text.count("\ngaps = true") == 2 and "loaded as gaps" in text
     train = load_problem(tmp_path / "r.toml").experiment("train")
     assert train.gaps and np.isnan(train.output("x")).sum() == 40 and len(train.segments()) == 2
+
+
+def test_init_loads_rows_missing_from_the_time_column_as_gaps(tmp_path):
+    """A fourth outside check: a record with rows lost got advice (split it) that a spec
+    cannot follow; init now writes gaps = true and the rows become gaps."""
+    _base_csv(tmp_path / "r.csv")
+    lines = (tmp_path / "r.csv").read_text().splitlines()
+    (tmp_path / "r.csv").write_text("\n".join(lines[:601] + lines[701:]) + "\n")  # 100 data rows lost
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml")]) == 0
+    text = (tmp_path / "r.toml").read_text()
+    assert "100 rows missing from the time column, loaded as gaps" in text and text.count("\ngaps = true") == 2
+    train = load_problem(tmp_path / "r.toml").experiment("train")
+    assert train.gaps and np.isnan(train.output("x")).sum() == 100

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS, first_text
+from cvxid.data.experiment import READERS, first_text, missing_rows
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -178,12 +178,16 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
                              f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file, give stamps with enough "
                              "digits (epoch seconds need more than 10), or give the sample step with --dt instead "
                              "of a time column")
-        dt = float((t[-1] - t[0]) / (t.size - 1))
+        lost = missing_rows(t)  # rows lost from a uniform record: the median step, and gaps where they were
+        dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(steps))
+        if lost is not None:
+            reasons.append(f"{int(lost[-1]) + 1 - t.size} rows missing from the time column, loaded as gaps")
     y = numeric[output][np.isfinite(numeric[output])]
     median_period = 2 * np.pi / band_edge(y, dt, share=0.5) if y.size > 16 else 0.0
     gaps = not (np.isfinite(numeric[output]).all() and np.isfinite(numeric[input]).all())
     if gaps:
         reasons.append("missing samples in the output or the input, loaded as gaps")
+    gaps = gaps or (time is not None and missing_rows(numeric[time]) is not None)
     return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps)
 
 

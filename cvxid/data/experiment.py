@@ -139,13 +139,20 @@ class Experiment:
                 f"experiment '{self.name}': time is not strictly increasing at sample {k + 1} "
                 f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
             )
+        missing = missing_rows(t)
+        if missing is not None and self.gaps:  # rows lost from a uniform record: gaps where they were
+            t, signals = _with_missing_rows(t, signals, missing)
+            steps = np.diff(t)
         dt = (t[-1] - t[0]) / (t.size - 1)
         dev = max(steps.max() - dt, dt - steps.min()) / dt
         if dev > JITTER_RTOL:
             k = int(np.argmax(np.abs(steps - dt)))
+            lost = "" if missing is None else (
+                f"; the time jumps by whole steps ({int(missing[-1]) + 1 - t.size} rows missing): load it with "
+                "gaps = true and they become gaps")
             raise CvxidError(
                 f"experiment '{self.name}': time is not uniformly sampled (step {steps[k]:.6g} at "
-                f"sample {k} against a mean step of {dt:.6g}, {100 * dev:.3g} % off; up to "
+                f"sample {k} against a mean step of {dt:.6g}, {100 * dev:.3g} % off{lost}; up to "
                 f"{100 * JITTER_RTOL:g} % is taken as logger jitter): resample the record onto a uniform grid "
                 "(e.g. numpy.interp), split it where a sample is missing, or, if the samples were taken "
                 "uniformly and only the time stamps jitter, write the time as t0 + k * dt"
@@ -245,6 +252,40 @@ class Experiment:
         if self.velocities:
             parts.append(f"  measured velocities: {', '.join(self.velocities)}")
         return "\n".join(parts)
+
+
+MISSING_GROWTH = 10
+"""The most a record may grow when its missing rows become gaps (:func:`missing_rows`)."""
+
+
+def missing_rows(t: np.ndarray) -> np.ndarray | None:
+    """Where each sample of a uniform record sits on its grid when rows were lost (the
+    time jumps by whole steps of its median step, within logger jitter): the indices on the
+    full grid, or None when no row is missing (or the jumps are not whole steps, or filling
+    them would grow the record more than :data:`MISSING_GROWTH` times)."""
+    steps = np.diff(t)
+    if steps.size == 0:
+        return None
+    dt = float(np.median(steps))
+    whole = np.round(steps / dt) if dt > 0 else steps
+    if dt <= 0 or not np.all(whole >= 1) or not np.any(whole > 1) \
+            or np.any(np.abs(steps - whole * dt) > JITTER_RTOL * dt) or whole.sum() + 1 > MISSING_GROWTH * t.size:
+        return None
+    return np.concatenate([[0], np.cumsum(whole)]).astype(np.int64)
+
+
+def _with_missing_rows(t: np.ndarray, signals: dict, index: np.ndarray) -> tuple[np.ndarray, dict]:
+    """The record on its full uniform grid (``index``: :func:`missing_rows`), NaN where the
+    rows were missing."""
+    full = t[0] + (t[-1] - t[0]) / index[-1] * np.arange(index[-1] + 1)
+    full[index] = t  # (the recorded times where there are some: their jitter is read as before)
+
+    def filled(v):
+        out = np.full(full.size, np.nan)
+        out[index] = v
+        return out
+
+    return full, {group: {k: filled(v) for k, v in sigs.items()} for group, sigs in signals.items()}
 
 
 def _uniform_to_rounding(t: np.ndarray) -> bool:
