@@ -139,12 +139,14 @@ class Experiment:
                 f"experiment '{self.name}': time is not strictly increasing at sample {k + 1} "
                 f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
             )
-        missing = missing_rows(t)
+        dt = (t[-1] - t[0]) / (t.size - 1)
+        dev = max(steps.max() - dt, dt - steps.min()) / dt
+        missing = missing_rows(t) if dev > JITTER_RTOL else None
         if missing is not None and self.gaps:  # rows lost from a uniform record: gaps where they were
             t, signals = _with_missing_rows(t, signals, missing)
             steps = np.diff(t)
-        dt = (t[-1] - t[0]) / (t.size - 1)
-        dev = max(steps.max() - dt, dt - steps.min()) / dt
+            dt = (t[-1] - t[0]) / (t.size - 1)
+            dev = max(steps.max() - dt, dt - steps.min()) / dt
         if dev > JITTER_RTOL:
             k = int(np.argmax(np.abs(steps - dt)))
             lost = "" if missing is None else (
