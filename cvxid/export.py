@@ -47,13 +47,13 @@ def _linear_terms(system) -> tuple[float, float]:
     jumps = []
     for term, coefficient in zip(system.terms, np.atleast_1d(system.coefficients)):
         coarse, fine = slopes(term, STEP), slopes(term, STEP / 100)
-        if np.any(np.abs(fine) > 10 * np.abs(coarse) + 1e-300):
+        if np.any(np.abs(fine) > STEEPER * np.abs(coarse) + 1e-300):
             jumps.append(term.name)
             continue
         k, c = k + coefficient * coarse[0], c + coefficient * coarse[1]
     if jumps:
-        warnings.warn(f"{', '.join(jumps)} {'has' if len(jumps) == 1 else 'have'} no derivative at rest (a jump at "
-                      "0): left out of the linearisation, which holds for motions where such a term stays constant "
+        warnings.warn(f"{', '.join(jumps)} {'has' if len(jumps) == 1 else 'have'} no finite derivative at rest (a "
+                      "jump or an infinite slope at 0): left out of the linearisation, which holds for motions where such a term stays constant "
                       "(a dry friction: in steady sliding); simulate the model (to_nlsys) to see its effect",
                       CvxidWarning, stacklevel=4)
     return k, c
@@ -61,7 +61,11 @@ def _linear_terms(system) -> tuple[float, float]:
 
 STEP = 1e-6
 """The central differences' step at rest (a term's slope is also read at a step 100 times
-smaller: one that grows 10-fold there jumps)."""
+smaller: one that grows :data:`STEEPER` times there has no finite slope at rest)."""
+STEEPER = 1.2
+"""A smooth term's two slopes agree to :math:`O(h^2)`; a jump's grows 100-fold, a power
+:math:`|\\dot x|^p`'s :math:`100^{1-p}`-fold (``sign(x')*abs(x')^0.5``: 10; a steep
+``tanh(50 x')`` stays at 1)."""
 
 
 def linearized_tf(model, pade_order: int = 6):

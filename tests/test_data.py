@@ -266,3 +266,6 @@ def test_rows_missing_from_a_uniform_record_become_gaps_when_gaps_are_on():
     off = np.r_[t[:1200], t[1300:] + 3e-4]  # a jump of 100.3 steps: not whole, refused as before
     with pytest.raises(CvxidError, match=r"time is not uniformly sampled \(step .*% off; up to 1 %"):
         Experiment(off, {"x": x[keep]}, {"f": f[keep]}, gaps=True)
+    slower = np.r_[np.arange(1000) * 1e-3, 1 + np.arange(600) * 2e-3]  # 1 kHz, then 500 Hz: a changed rate
+    with pytest.raises(CvxidError, match=r"time is not uniformly sampled \(step 0.002"):  # (a review: read as
+        Experiment(slower, {"x": np.sin(slower)}, {"f": np.cos(slower)}, gaps=True)  # 599 rows lost, 40 % dropped)

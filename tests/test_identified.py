@@ -101,10 +101,16 @@ def test_a_dry_friction_is_left_out_of_the_linearisation_and_said():
 
     spec = ModelSpec(Library([parse_term(n) for n in ("x", "x'", "sign(x')", "x'|x'|")]))
     model = IdentifiedModel(spec, {"x''": 1.0, "x": 6.0, "x'": 0.4, "sign(x')": 0.8, "x'|x'|": 0.3})
-    with pytest.warns(CvxidWarning, match=r"sign\(x'\) has no derivative at rest \(a jump at 0\): left out"):
+    with pytest.warns(CvxidWarning, match=r"sign\(x'\) has no finite derivative at rest \(a jump or an infinite "
+                                          r"slope at 0\): left out"):
         tf = model.linearized_tf()
     assert np.allclose(tf.den[0][0], [1.0, 0.4, 6.0], atol=1e-6)  # x'|x'| has slope 0 at rest: not a jump
     assert tf.input_labels == ["f"] and tf.output_labels == ["x"]  # as to_nlsys names them
+    root = parse_term("sign(x')*abs(x')^0.5")  # an infinite slope at rest (it added 800 to the damping)
+    steep = IdentifiedModel(ModelSpec(Library([parse_term("x"), parse_term("x'"), root])),
+                            {"x''": 1.0, "x": 6.0, "x'": 0.4, root.name: 0.8})
+    with pytest.warns(CvxidWarning, match="no finite derivative at rest"):
+        assert np.allclose(steep.linearized_tf().den[0][0], [1.0, 0.4, 6.0], atol=1e-6)
 
 
 def test_the_table_lists_the_model_s_terms_and_the_truth_s_not_every_dropped_candidate():

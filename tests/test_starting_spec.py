@@ -261,3 +261,29 @@ def test_init_loads_rows_missing_from_the_time_column_as_gaps(tmp_path):
     assert "100 rows missing from the time column, loaded as gaps" in text and text.count("\ngaps = true") == 2
     train = load_problem(tmp_path / "r.toml").experiment("train")
     assert train.gaps and np.isnan(train.output("x")).sum() == 100
+
+
+@pytest.mark.parametrize("names, chosen", [
+    (("time", "theta", "theta_dot", "torque"), ("theta", "torque")),
+    (("t", "angle", "angle_rate", "voltage"), ("angle", "voltage")),
+])
+def test_a_whole_name_goes_before_a_word_of_one(names, chosen):
+    """A review of the ambiguity error: theta_dot (a word 'theta') beside theta made a file
+    that init read before an error; a whole name is taken before a word of one."""
+    t = np.arange(3000) * 1e-3
+    rng = np.random.default_rng(0)
+    columns = dict(zip(names, [t, np.sin(0.7 * t) + 1e-3 * rng.standard_normal(t.size), np.cos(0.7 * t),
+                               np.sign(np.sin(3 * t)) + 0.3 * rng.standard_normal(t.size)]))
+    found = detect_columns(columns)
+    assert (found.output, found.input) == chosen
+
+
+def test_init_reads_pandas_default_header(tmp_path):
+    """A review of the headerless check: pandas' to_csv of an unnamed frame writes the header
+    0,1,2, which names the columns (it was read before and must still be)."""
+    import pandas as pd
+
+    t = np.arange(2000) * 1e-3
+    pd.DataFrame(np.column_stack([t, np.sin(3 * t), np.cos(7 * t)])).to_csv(tmp_path / "r.csv", index=False)
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml"), "--time", "0", "--output", "1",
+                 "--input", "2"]) == 0

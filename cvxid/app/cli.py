@@ -22,10 +22,14 @@ from cvxid.progress import set_quiet
 
 def _run(args) -> int:
     from cvxid.app.report import prepare_folder
+    from cvxid.spec.load import load_problem
+    from cvxid.spec.problem import ProblemSpec
 
     if args.out:
         prepare_folder(args.out)  # an unusable --out fails before any work
     spec = _with_engine(args.spec, args.backend, args.scheduler)
+    if not isinstance(spec, ProblemSpec):  # (parsed here: the spec's own warnings, a retired key, are shown)
+        spec = load_problem(spec)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)  # (run() issues result.warnings: the summary prints them)
         result, path, replaced, table = _identify_and_report(spec, args)

@@ -57,7 +57,8 @@ from cvxid.spec.problem import ProblemSpec
 def run(spec) -> RunResult:
     """Identify the system of a problem spec (a parsed spec or a path to one).  Its
     warnings are in ``result.warnings`` (and ``result.json``), and each is issued once to
-    the caller as a :class:`~cvxid.errors.CvxidWarning`."""
+    the caller, in its own category (a :class:`~cvxid.errors.CvxidWarning`), after the run:
+    a caller that turns warnings into errors gets the first as an exception."""
     if isinstance(spec, (str, FilePath)):
         spec = load_problem(spec)
     start = time.perf_counter()
@@ -74,11 +75,12 @@ def run(spec) -> RunResult:
         _warn_drift(result)
         _warn_quiet_test(result)
     polished = (result.tau or {}).get("method") == "output_error"  # its delay supersedes the equation error's
-    result.warnings = list(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)
-                                         and not (polished and issubclass(w.category, EquationErrorDelayWarning))))
+    said = dict.fromkeys((str(w.message), w.category) for w in caught if issubclass(w.category, CvxidWarning)
+                         and not (polished and issubclass(w.category, EquationErrorDelayWarning)))
+    result.warnings = list(dict.fromkeys(message for message, _ in said))
     result.seconds = time.perf_counter() - start
-    for message in result.warnings:  # to a Python caller too, once each (a notebook shows them; the CLI's summary
-        warnings.warn(message, CvxidWarning, stacklevel=2)  # prints result.warnings and ignores these)
+    for message, category in said:  # to a Python caller too, once each in its own category (a notebook shows
+        warnings.warn(message, category, stacklevel=2)  # them; the CLI's summary prints result.warnings instead)
     return result
 
 
@@ -249,18 +251,20 @@ def _warn_implausible(out: RunResult) -> None:
         where = "" if len(out.system.models) == 1 else f" of equation '{label}'"
         if model.spec.inertia and mass is not None and not mass >= 0:
             warnings.warn(
-                f"the identified inertia{where} is {mass:.4g}, negative: no physical system has it (nor can it be "
+                f"the identified inertia{where} is {mass:.4g}, {'negative' if mass < 0 else 'not a number'}: no "
+                "physical system has it (nor can it be "
                 f"simulated). Constrain it ([model.constraints] nonnegative = [\"{model.spec.inertia_term.name}\"]), "
                 "keep the windowed integrals (window = \"auto\") on long records, or check the data", CvxidWarning,
                 stacklevel=2)
         elif model.spec.inertia and mass is not None and mass <= INERTIA_AT_BOUND * _natural_inertia(model.spec,
                                                                                                      out.train):
             spec = model.spec
+            flipped = spec.input[1:].strip() if spec.input.startswith("-") else f"-{spec.input}"
             warnings.warn(
-                f"the identified inertia{where} is {mass:.3g}, at its bound 0: its force is under "
+                f"the identified inertia{where} is {mass:.3g}, at its lower bound (next to 0): its force is under "
                 f"{INERTIA_AT_BOUND:g} of the input's at the record's fastest motion, so a positive inertia does not "
                 f"fit these data. Check the input's sign (a sensor mounted the other way round: [model] input = "
-                f"\"-{spec.input}\"), that '{spec.input}' is the signal that drives '{spec.coordinate}', and the "
+                f"\"{flipped}\"), that '{spec.input}' is the signal that drives '{spec.coordinate}', and the "
                 "time column's unit", CvxidWarning, stacklevel=2)
     if out.polish is not None:
         _warn_undetermined(out.polish)
@@ -323,11 +327,11 @@ def _warn_negative_damping(out: RunResult) -> None:
         name = spec.parameter_name(term) if one else f"{label}:{term}"
         if name not in out.polish.parameters or name in out.polish.states:
             continue
-        low, high = out.polish.physical_interval(name)
-        value = out.polish.parameters[name] * (-1 if out.polish.negated(name) else 1)
+        low, high = out.polish.interval(name)  # (the coefficient of x' itself, whatever its physical name's sign)
+        value = out.polish.parameters[name]
         if high < 0 and _net_damping(model, value) < 0:
             warnings.warn(
-                f"the damping {name} is {value:.3g} (95 % interval {low:.3g} … {high:.3g}), "
+                f"the damping, the coefficient of {term}, is {value:.3g} (95 % interval {low:.3g} … {high:.3g}), "
                 "negative: the model feeds energy in at low speeds. A passive system has no such term: constrain it "
                 f"([model.constraints] nonnegative = [\"{term}\"]) or look for the effect it stands in for (a "
                 "friction, a delay, a force the input misses); a driven or controlled system may have it",

@@ -73,10 +73,13 @@ def _words(name: str) -> list[str]:
 
 
 def _named(names, wanted, what: str | None = None) -> str | None:
-    """The column whose name (or one of its words) is in ``wanted``; None when none is.
-    Two such columns are an error naming both (``what``: the option that picks one): a
-    file with a force ``f`` and a reference ``u`` took ``u`` by its rank in ``wanted``."""
-    found = [name for name in names if any(_matches(_words(name), word) for word in wanted)]
+    """The column named by a word in ``wanted``: a whole name (``theta``) before one word
+    of several (``theta_dot``), then by the word's rank in ``wanted``; None when none is.
+    Two whole names (or, without one, two word matches) are an error naming both (``what``:
+    the option that picks one): a file with a force ``f`` and a reference ``u`` took ``u``
+    by its rank in ``wanted``."""
+    whole = [n for n in names if any(_words(n) == [w] for w in wanted)]
+    found = whole or [n for n in names if any(_matches(_words(n), w) for w in wanted)]
     if len(found) > 1 and what is not None:
         raise CvxidError(f"the columns {', '.join(found)} are each named like an {what}: say which one with --{what}")
     return min(found, key=lambda n: min(wanted.index(w) for w in wanted if _matches(_words(n), w)), default=None)
@@ -169,6 +172,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if len(others) > 2:
         reasons.append(f"not used: {', '.join(n for n in others if n not in (output, input))}")
     samples = numeric[output].size
+    lost = None
     if dt is None:
         t = numeric[time]
         steps = np.diff(t)
@@ -182,12 +186,13 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(steps))
         if lost is not None:
             reasons.append(f"{int(lost[-1]) + 1 - t.size} rows missing from the time column, loaded as gaps")
+            samples = int(lost[-1]) + 1  # (the record's grid: its duration and delay range count the lost rows)
     y = numeric[output][np.isfinite(numeric[output])]
     median_period = 2 * np.pi / band_edge(y, dt, share=0.5) if y.size > 16 else 0.0
     gaps = not (np.isfinite(numeric[output]).all() and np.isfinite(numeric[input]).all())
     if gaps:
         reasons.append("missing samples in the output or the input, loaded as gaps")
-    gaps = gaps or (time is not None and missing_rows(numeric[time]) is not None)
+    gaps = gaps or lost is not None
     return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps)
 
 

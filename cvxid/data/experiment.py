@@ -35,14 +35,16 @@ uniform (a missing sample, a changed rate) and the record is refused."""
 
 def first_text(values) -> str:
     """Where a column that should hold numbers does not: ``" (data row 12001: '-')"``, the
-    first data row (counted from 1) whose cell is not a number, or ``""``."""
-    flat = np.ravel(np.asarray(values, dtype=object))
-    for row, cell in enumerate(flat):
-        try:
-            float(cell)
-        except (TypeError, ValueError):
-            return f" (data row {row + 1}: {str(cell)[:20]!r})"
-    return ""
+    first data row (counted from 1) whose cell is not a number (an empty cell is a missing
+    sample, not text), or ``""``."""
+    import pandas as pd
+
+    cells = pd.Series(np.ravel(np.asarray(values, dtype=object)))
+    text = pd.to_numeric(cells, errors="coerce").isna() & cells.notna()
+    if not text.any():
+        return ""
+    row = int(np.argmax(text.to_numpy()))
+    return f" (data row {row + 1}: {str(cells.iloc[row])[:20]!r})"
 
 
 def _as_signal(name: str, values, experiment: str, allow_nan: bool = False) -> np.ndarray:
@@ -142,16 +144,16 @@ class Experiment:
         dt = (t[-1] - t[0]) / (t.size - 1)
         dev = max(steps.max() - dt, dt - steps.min()) / dt
         missing = missing_rows(t) if dev > JITTER_RTOL else None
+        lost = "" if missing is None else (
+            f"; the time jumps by whole steps ({int(missing[-1]) + 1 - t.size} rows missing): load it with "
+            "gaps = true and they become gaps")
         if missing is not None and self.gaps:  # rows lost from a uniform record: gaps where they were
             t, signals = _with_missing_rows(t, signals, missing)
-            steps = np.diff(t)
+            steps, lost = np.diff(t), ""
             dt = (t[-1] - t[0]) / (t.size - 1)
             dev = max(steps.max() - dt, dt - steps.min()) / dt
         if dev > JITTER_RTOL:
             k = int(np.argmax(np.abs(steps - dt)))
-            lost = "" if missing is None else (
-                f"; the time jumps by whole steps ({int(missing[-1]) + 1 - t.size} rows missing): load it with "
-                "gaps = true and they become gaps")
             raise CvxidError(
                 f"experiment '{self.name}': time is not uniformly sampled (step {steps[k]:.6g} at "
                 f"sample {k} against a mean step of {dt:.6g}, {100 * dev:.3g} % off{lost}; up to "
@@ -256,31 +258,34 @@ class Experiment:
         return "\n".join(parts)
 
 
-MISSING_GROWTH = 10
-"""The most a record may grow when its missing rows become gaps (:func:`missing_rows`)."""
+MISSING_JUMPS = 0.01
+"""The largest share of a record's steps that may jump by whole steps for the jumps to be
+rows lost from a uniform record (:func:`missing_rows`): a few isolated losses, not a
+changed sample rate (1 kHz, then 500 Hz: every later step "jumps" by two)."""
 
 
 def missing_rows(t: np.ndarray) -> np.ndarray | None:
     """Where each sample of a uniform record sits on its grid when rows were lost (the
-    time jumps by whole steps of its median step, within logger jitter): the indices on the
-    full grid, or None when no row is missing (or the jumps are not whole steps, or filling
-    them would grow the record more than :data:`MISSING_GROWTH` times)."""
+    time jumps by whole steps of its median step, within logger jitter, at no more than
+    :data:`MISSING_JUMPS` of its steps, never twice in a row, and the lost rows no more
+    than the recorded ones): the indices on the full grid; else None."""
     steps = np.diff(t)
-    if steps.size == 0:
+    dt = float(np.median(steps)) if steps.size else 0.0
+    if not dt > 0:
         return None
-    dt = float(np.median(steps))
-    whole = np.round(steps / dt) if dt > 0 else steps
-    if dt <= 0 or not np.all(whole >= 1) or not np.any(whole > 1) \
-            or np.any(np.abs(steps - whole * dt) > JITTER_RTOL * dt) or whole.sum() + 1 > MISSING_GROWTH * t.size:
+    whole = np.round(steps / dt)
+    jumps = whole > 1
+    if not jumps.any() or np.any(whole < 1) or np.any(np.abs(steps - whole * dt) > JITTER_RTOL * dt) \
+            or jumps.sum() > MISSING_JUMPS * steps.size or np.any(jumps[1:] & jumps[:-1]) \
+            or whole.sum() + 1 > 2 * t.size:
         return None
     return np.concatenate([[0], np.cumsum(whole)]).astype(np.int64)
 
 
 def _with_missing_rows(t: np.ndarray, signals: dict, index: np.ndarray) -> tuple[np.ndarray, dict]:
-    """The record on its full uniform grid (``index``: :func:`missing_rows`), NaN where the
-    rows were missing."""
-    full = t[0] + (t[-1] - t[0]) / index[-1] * np.arange(index[-1] + 1)
-    full[index] = t  # (the recorded times where there are some: their jitter is read as before)
+    """The record on its full grid (``index``: :func:`missing_rows`), NaN where the rows
+    were missing; the recorded times kept, the lost ones placed between their neighbours."""
+    full = np.interp(np.arange(index[-1] + 1), index, t)
 
     def filled(v):
         out = np.full(full.size, np.nan)
@@ -361,7 +366,9 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     options = {"encoding": "utf-8-sig", **_separator(path)}  # (a byte-order mark is not the first name's)
     head = read(nrows=100, **options)
     names = [str(c).replace(",", ".") if options.get("decimal") == "," else str(c) for c in head.columns]
-    if all(_numeric(n) or _numeric(re.sub(r"\.\d+$", "", n)) for n in names):  # (pandas renames a repeated one)
+    default = names == [str(i) for i in range(len(names))]  # (pandas' to_csv of an unnamed frame: 0,1,2)
+    if not default and all(_numeric(n) or _numeric(re.sub(r"\.\d+$", "", n)) for n in names):  # (a repeated
+        # number is renamed by pandas: 0.5, 0.5.1)
         raise CvxidError(f"{path}: the first line ({', '.join(map(str, head.columns))}) is numbers, not column names: "
                          "add a header line that names the columns (t,x,f) above the data")
     if len(head) > 1 and not any(pd.api.types.is_numeric_dtype(head[c]) for c in head.columns):
@@ -501,7 +508,7 @@ def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what:
     column would be cut out of step with the others (a clear error instead)."""
     lengths = {}
     for name in dict.fromkeys(used):
-        shape = np.shape(np.squeeze(_pick(columns, name, what, path)))
+        shape = np.shape(np.atleast_1d(np.squeeze(_pick(columns, name, what, path))))
         if len(shape) != 1:
             raise CvxidError(f"{path}: {what} '{name}' has shape {np.shape(columns[name])}; give a 1-D array "
                              "(one value per sample)")

@@ -73,18 +73,13 @@ class Program:
                     stack.append(UNARY[int(op)](stack.pop()))
         return stack[0]
 
-    def crossing(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> int | None:
-        """The first sample after which a divisor, or the base of a negative power, changes
-        sign or is 0 (the term is unbounded near it); None when none does."""
+    def crossings(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> np.ndarray:
+        """The samples after which a divisor, or the base of a negative power, changes sign
+        or is 0 (where the term may be unbounded), in order."""
         poles = []
         self.evaluate(positions, velocities, poles)
-        found = []
-        for pole in (p for p in poles if np.ndim(p) == 1):
-            sign = np.sign(pole)
-            changes = np.flatnonzero(sign[:-1] * sign[1:] <= 0)
-            if changes.size:
-                found.append(int(changes[0]))
-        return min(found, default=None)
+        found = [np.flatnonzero(np.sign(p[:-1]) * np.sign(p[1:]) <= 0) for p in poles if np.ndim(p) == 1]
+        return np.unique(np.concatenate(found)) if found else np.zeros(0, np.int64)
 
 
 @dataclass(frozen=True)

@@ -344,12 +344,12 @@ class Expression(Term):
         velocities = [states.get(velocity_symbol(c)) for c in self.coordinates]
         return np.broadcast_to(self.parsed.program.evaluate(positions, velocities), shape)
 
-    def crossing(self, states: States) -> int | None:
-        """The first sample after which a divisor of the term (or the base of a negative
-        power) crosses 0 (:meth:`~cvxid.model.expression.Program.crossing`)."""
+    def crossings(self, states: States) -> np.ndarray:
+        """The samples after which a divisor of the term (or the base of a negative power)
+        crosses 0 (:meth:`~cvxid.model.expression.Program.crossings`)."""
         positions = [states.get(c) for c in self.coordinates]
         velocities = [states.get(velocity_symbol(c)) for c in self.coordinates]
-        return self.parsed.program.crossing(positions, velocities)
+        return self.parsed.program.crossings(positions, velocities)
 
     @property
     def latex(self) -> str:

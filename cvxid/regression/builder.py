@@ -62,25 +62,31 @@ def _transform(time: np.ndarray, orders: AlgebraicOrders, windows: Windows | Non
 
 
 POLE_PEAK = 100.0
-"""A term whose divisor crosses 0 is refused when its peak exceeds this many times its
-median magnitude (``1/x`` of a noisy x crossing 0: about 700 at 1 kHz; a bounded quotient,
-``tanh(x)/x``, 1.4)."""
+"""A term is refused when, next to a sample where its divisor crosses 0, it exceeds this
+many times its median magnitude (``1/x`` of a noisy x: about 700 at 1 kHz; a bounded
+quotient, ``tanh(x)/x`` or ``(1 - cos(x))/x``, stays below its median there)."""
 
 
 def _refuse_pole(term, states, signal: np.ndarray, sample, experiment: str) -> None:
     """A clear error when ``term`` divides by a quantity that crosses 0 on these samples
-    and peaks there (``sample``: a position in ``signal`` -> the record's sample)."""
+    and peaks next to the crossing (``sample``: a position in ``signal`` -> the record's
+    sample)."""
     if not isinstance(term, Expression):
         return
-    at = term.crossing(states)
+    at = term.crossings(states)
+    if at.size == 0:
+        return
     magnitude = np.abs(signal)
-    if at is None or not magnitude.max(initial=0.0) > POLE_PEAK * np.median(magnitude):
+    near = np.unique(np.clip(np.concatenate([at, at + 1]), 0, magnitude.size - 1))  # both sides of each
+    i = int(near[np.argmax(magnitude[near])])
+    median = float(np.median(magnitude))
+    if not magnitude[i] > POLE_PEAK * median:
         return
     raise CvxidError(
-        f"term '{term.name}' is unbounded on these data: it divides by a quantity that crosses 0 (first after sample "
-        f"{sample(at)} of '{experiment}'), where it peaks at {magnitude.max():.3g} against a median "
-        f"{np.median(magnitude):.3g}; a few samples near each crossing would decide its coefficient. Write it so that "
-        "it is bounded where the state goes (x/(x^2 + 0.01) for 1/x), or drop it")
+        f"term '{term.name}' is unbounded on these data: it divides by a quantity that crosses 0 (near sample "
+        f"{sample(i)} of '{experiment}'), where it reaches {magnitude[i]:.3g} against a median {median:.3g}; a few "
+        "samples near each crossing would decide its coefficient. Write it so that it is bounded where the state "
+        "goes (x/(x^2 + 0.01) for 1/x), or drop it")
 
 
 class _Block:

@@ -507,7 +507,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     if not coord.isidentifier():
         raise CvxidError(f"spec: [{where}] coordinate = '{coord}' is not a name: use letters, digits and _ (x, "
                          "theta, x1); several coordinates are several [[model.equation]] tables")
-    if coord == str(table.get("input", "f")).lstrip("-"):
+    if coord == str(table.get("input", "f")).replace(" ", "").lstrip("-"):
         raise CvxidError(f"spec: [{where}] coordinate = '{coord}' is also the input: the coordinate is the measured "
                          "output the model explains, the input the force or command that drives it; name each its "
                          "own (the [data.*] output and input tables map them to the file's columns)")
