@@ -53,8 +53,9 @@ def _linear_terms(system) -> tuple[float, float]:
         k, c = k + coefficient * coarse[0], c + coefficient * coarse[1]
     if jumps:
         warnings.warn(f"{', '.join(jumps)} {'has' if len(jumps) == 1 else 'have'} no finite derivative at rest (a "
-                      "jump or an infinite slope at 0): left out of the linearisation, which holds for motions where such a term stays constant "
-                      "(a dry friction: in steady sliding); simulate the model (to_nlsys) to see its effect",
+                      "jump or an infinite slope at 0): left out of the linearisation, which holds for motions "
+                      "where such a term stays constant (a dry friction: in steady sliding); simulate the model "
+                      "(to_nlsys) to see its effect",
                       CvxidWarning, stacklevel=4)
     return k, c
 
