@@ -159,7 +159,8 @@ class PolishResult:
         frame = pd.DataFrame({"estimate": [self.parameters[n] for n in shown],
                               "std error": [self.standard_errors.get(n, np.nan) for n in shown],
                               "95 % low": [self.interval(n)[0] for n in shown],
-                              "95 % high": [self.interval(n)[1] for n in shown]}, index=pd.Index(shown, name="parameter"))
+                              "95 % high": [self.interval(n)[1] for n in shown]},
+                             index=pd.Index(shown, name="parameter"))
         return (f"PolishResult (output-error polish): simulation RMS {self.rms_before:.4g} -> {self.rms_after:.4g} "
                 f"in {self.iterations} iterations, {self.seconds:.1f} s"
                 + ("" if self.profile is None else ", the delay profiled") + "\n"
