@@ -233,3 +233,28 @@ def test_a_final_re_polish_the_test_record_judges_worse_is_not_kept():
     assert not _no_worse(np.full(100, 0.0952), judged)
     assert _no_worse(np.full(100, 0.0632 * (1 + TEST_SLACK / 2)), judged)
     assert not _no_worse(None, judged)  # a re-polish whose free run diverges on the test record
+
+
+def test_a_re_polish_the_test_record_judges_worse_is_dropped_with_a_warning(monkeypatch):
+    """The rule in place: the final re-polish reports a better training fit (here forced)
+    with a model the test record reads worse (its cubic stiffness zeroed); the judged model
+    is kept, and the warning says its intervals are local."""
+    from dataclasses import replace
+
+    import cvxid.diagnosis.simulation as stage
+    from cvxid import CvxidWarning
+
+    real = stage.polish
+
+    def flattering(system, train, **settings):
+        fit = real(system, train, **settings)
+        model = fit.system.single
+        worse = replace(model, coefficients=dict(model.coefficients, **{"x^3": 0.0}))
+        return replace(fit, rms_after=0.5 * fit.rms_after, system=replace(fit.system, models={"x": worse}))
+
+    monkeypatch.setattr(stage, "polish", flattering)
+    lacking = polished(("x'", "x"))
+    with pytest.warns(CvxidWarning, match="the model the test record judged is kept, and its intervals are its "
+                                          "standard errors'"):
+        out = refine_by_simulation(lacking, record(0), record(1), ["cubic_stiffness"])
+    assert out.polish.parameters["x^3"] == pytest.approx(TRUTH["x^3"], rel=0.05) and out.polish.profile is None

@@ -179,9 +179,9 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         if not np.all(steps > 0):  # (NaN steps fail too)
             row = int(np.argmax(~(steps > 0)))
             raise CvxidError(f"the time column '{time}' does not increase from data row {row + 1} to {row + 2} "
-                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file, give stamps with enough "
-                             "digits (epoch seconds need more than 10), or give the sample step with --dt instead "
-                             "of a time column")
+                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file and remove repeated rows; "
+                             "if the stamps repeat because they are rounded (epoch seconds need more than 10 "
+                             "digits), give the sample step with --dt instead of a time column")
         lost = missing_rows(t)  # rows lost from a uniform record: the median step, and gaps where they were
         dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(steps))
         if lost is not None:

@@ -277,8 +277,16 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         # same terms that the test record does not judge worse (on a real record the profile's
         # other basin fitted the training record better and the test record 50 % worse);
         # without a profile of its own its intervals are the standard errors'
-        kept = again if again.rms_after <= current.rms_after * (1 + 1e-3) and _no_worse(
-            _test_residual(again.system, test), before) else replace(current, profile=None)
+        better = again.rms_after <= current.rms_after * (1 + 1e-3)
+        judged = _test_residual(again.system, test) if better else None
+        kept = again if better and _no_worse(judged, before) else replace(current, profile=None)
+        if better and kept is not again:
+            warnings.warn(
+                f"the final delay profile found a model that fits the training record better (simulation RMS "
+                f"{again.rms_after:.4g} against {current.rms_after:.4g}) and the test record worse: the model the "
+                "test record judged is kept, and its intervals are its standard errors' at its own delay only (no "
+                "profile over the delay: a trade between the delay, a free gain and the stiffness is not in them)",
+                CvxidWarning, stacklevel=2)
         current = replace(kept, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
     return SimulationRefinement(current, steps, rankings, precise)
 
