@@ -617,6 +617,9 @@ def test_the_python_api_names_the_argument_of_the_wrong_type():
     assert cvxid.Path.compute(problem, 1e-3).lambdas.tolist() == [1e-3]  # (numpy's AxisError before)
     with pytest.raises(CvxidError, match="validate must be a function of the coefficients"):
         cvxid.Path.compute(problem, [1e-3, 1e-2], validate=record)
+    with pytest.raises(CvxidError, match="the records must be an Experiment or a list of them .* got ndarray"):
+        cvxid.build_regression(MODEL, np.sin(t))  # (an AttributeError 'segments' before)
+    assert ModelSpec(library=["x", "x'"]).library.names == MODEL.library.names  # (an AttributeError before)
 
 
 def test_results_print_what_they_hold(rng):

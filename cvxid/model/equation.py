@@ -97,6 +97,8 @@ class ModelSpec:
     input_delay: InputDelay | None = None
 
     def __post_init__(self):
+        if not isinstance(self.library, Library):  # (a list of terms or their names)
+            object.__setattr__(self, "library", Library(self.library))
         signed = [n for n in self.column_names if not n.endswith(DELAYED)]
         for name in self.nonnegative:
             if name.endswith(DELAYED):

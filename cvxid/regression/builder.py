@@ -127,9 +127,17 @@ class RegressionBuilder:
 
     def __init__(self, model: ModelSpec, experiments, velocity: str = "savgol", window: float | str | None = "auto",
                  allow_large: bool = False):
+        if not isinstance(model, ModelSpec):
+            raise CvxidError(f"the model must be a ModelSpec (a spec's .model), got {type(model).__name__}")
         self.model = model
         self.velocity = velocity
-        exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        try:
+            exps = [experiments] if isinstance(experiments, Experiment) else list(experiments)
+        except TypeError:  # (not a sequence)
+            exps = []
+        if not exps or not all(isinstance(e, Experiment) for e in exps):
+            raise CvxidError(f"the records must be an Experiment or a list of them (cvxid.Experiment(t, {{\"x\": x}}, "
+                             f"{{\"f\": f}}), cvxid.from_frame(...)), got {type(experiments).__name__}")
         exact = model.delay is not None and model.delay.exact
         self.start = model.delay.tau_max if exact else 0.0
         self.experiments = usable_segments(exps, 2 * self.start)  # integrals restart after gaps
