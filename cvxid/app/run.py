@@ -242,7 +242,8 @@ def _spans_range(interval, delay) -> bool:
 
 
 def _warn_implausible(out: RunResult) -> None:
-    """A model no physical system has, said aloud: a non-positive inertia, a selection that
+    """A model no physical system has, said aloud: a negative inertia, one at its lower
+    bound (an input of the wrong sign), a negative net damping, a selection that
     dropped every candidate term at the top of the lambda grid (unless listed or kept
     linear terms explain the data: :data:`EXPLAINED`), or one that kept every candidate at
     its bottom."""

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS, first_text, missing_rows
+from cvxid.data.experiment import READERS, first_step_back, first_text, missing_rows
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -175,15 +175,14 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     lost = None
     if dt is None:
         t = numeric[time]
-        steps = np.diff(t)
-        if not np.all(steps > 0):  # (NaN steps fail too)
-            row = int(np.argmax(~(steps > 0)))
+        row = first_step_back(t)
+        if row is not None:
             raise CvxidError(f"the time column '{time}' does not increase from data row {row + 1} to {row + 2} "
                              f"({t[row]:.10g}, then {t[row + 1]:.10g}): sort the file and remove repeated rows; "
                              "if the stamps repeat because they are rounded (epoch seconds need more than 10 "
                              "digits), give the sample step with --dt instead of a time column")
         lost = missing_rows(t)  # rows lost from a uniform record: the median step, and gaps where they were
-        dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(steps))
+        dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(np.diff(t)))
         if lost is not None:
             reasons.append(f"{int(lost[-1]) + 1 - t.size} rows missing from the time column, loaded as gaps")
             samples = int(lost[-1]) + 1  # (the record's grid: its duration and delay range count the lost rows)

@@ -135,8 +135,8 @@ class Experiment:
                 f"experiment '{self.name}': only {t.size} samples; at least {MIN_SAMPLES} are needed"
             )
         steps = np.diff(t)
-        if np.any(steps <= 0):
-            k = int(np.argmax(steps <= 0))
+        k = first_step_back(t)
+        if k is not None:
             raise CvxidError(
                 f"experiment '{self.name}': time is not strictly increasing at sample {k + 1} "
                 f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
@@ -256,6 +256,13 @@ class Experiment:
         if self.velocities:
             parts.append(f"  measured velocities: {', '.join(self.velocities)}")
         return "\n".join(parts)
+
+
+def first_step_back(t: np.ndarray) -> int | None:
+    """The first sample ``k`` after which the time does not increase (``t[k + 1] <= t[k]``,
+    or NaN), or None."""
+    back = ~(np.diff(t) > 0)
+    return int(np.argmax(back)) if back.any() else None
 
 
 MISSING_JUMPS = 0.01

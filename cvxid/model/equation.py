@@ -20,13 +20,9 @@ from cvxid.errors import CvxidError
 from cvxid.model.delay import DelayedFeedback
 from cvxid.model.input_delay import InputDelay
 from cvxid.model.library import Effect, Library
-from cvxid.model.terms import DelayedSignal, Derivative, Term, parse_term
+from cvxid.model.terms import DELAYED, DelayedSignal, Derivative, Term, parse_term
 
 INERTIA, DELAY, LIBRARY, LISTED, LINEAR = "inertia", "delay", "library", "listed", "linear"
-
-
-DELAYED = "(t-tau)"
-"""How the delayed feedback's column names end (``x(t-tau)``)."""
 
 
 @dataclass(frozen=True)

@@ -179,6 +179,10 @@ class Derivative(Term):
         return base + "^{" + "\\prime" * self.order + "}" if self.order <= 3 else f"{base}^{{({self.order})}}"
 
 
+DELAYED = "(t-tau)"
+"""How the delayed feedback's names end (``x(t-tau)``, ``x'(t-tau)``)."""
+
+
 class DelayedSignal(Term):
     r"""The delayed feedback signal :math:`x^{(q)}(t-\tau)` (exact delay, unknown gain).
 
@@ -190,13 +194,13 @@ class DelayedSignal(Term):
     def __init__(self, coordinate: str, derivative: int = 0, meaning: str | None = None):
         self.coordinate = coordinate
         self.derivative = int(derivative)
-        self.name = f"{coordinate}{chr(39) * self.derivative}(t-tau)"
+        self.name = f"{coordinate}{chr(39) * self.derivative}{DELAYED}"
         self.meaning = meaning or ("delayed feedback" if self.derivative == 0 else
                                    "a change of the delay (its time derivative)")
 
     @property
     def symbol(self) -> str:
-        return f"{self.coordinate}(t-tau)"
+        return f"{self.coordinate}{DELAYED}"
 
     @property
     def symbols(self) -> frozenset[str]:

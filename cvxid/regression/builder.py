@@ -73,13 +73,15 @@ def _refuse_pole(term, states, signal: np.ndarray, sample, experiment: str) -> N
     sample)."""
     if not isinstance(term, Expression):
         return
+    magnitude = np.abs(signal)
+    median = float(np.median(magnitude))
+    if not magnitude.max(initial=0.0) > POLE_PEAK * median:  # (no peak at all: the divisors are not evaluated)
+        return
     at = term.crossings(states)
     if at.size == 0:
         return
-    magnitude = np.abs(signal)
     near = np.unique(np.clip(np.concatenate([at, at + 1]), 0, magnitude.size - 1))  # both sides of each
     i = int(near[np.argmax(magnitude[near])])
-    median = float(np.median(magnitude))
     if not magnitude[i] > POLE_PEAK * median:
         return
     raise CvxidError(
@@ -216,17 +218,17 @@ class RegressionBuilder:
                 with np.errstate(all="ignore"):
                     pieces = {s: v[index] for s, v in states.items()}
                     signal = np.broadcast_to(term.regression_signal(pieces), next(iter(pieces.values())).shape)
+                def sample(at):  # a position in the signal -> the record's sample
+                    return block.first + (index.start + at if isinstance(index, slice) else int(index[at]))
+
                 if not np.all(np.isfinite(signal)):
-                    at = int(np.argmax(~np.isfinite(signal)))
-                    sample = block.first + (index.start + at if isinstance(index, slice) else int(index[at]))
                     raise CvxidError(
-                        f"term '{term.name}' is not finite on these data (first at sample {sample} of "
+                        f"term '{term.name}' is not finite on these data (first at sample "
+                        f"{sample(int(np.argmax(~np.isfinite(signal))))} of "
                         f"'{self.experiments[block.segment].name}': a fractional power or square root of a negative "
                         "value, a division by zero, an overflow); write it so that it is defined everywhere the state "
                         "goes, e.g. abs(x)^1.5 for x^1.5")
-                _refuse_pole(term, pieces, signal, lambda at: block.first + (
-                    index.start + at if isinstance(index, slice) else int(index[at])),
-                    self.experiments[block.segment].name)
+                _refuse_pole(term, pieces, signal, sample, self.experiments[block.segment].name)
                 return signal
 
             block.columns[term.name] = block.transform.rows(read, term.regression_order)

@@ -26,10 +26,10 @@ from cvxid.identify.path import SELECTING, SELECTION_RULES
 from cvxid.identify.problem import SOLVERS
 from cvxid.model.delay import ASSUMED, HISTORIES, METHODS, DelayedFeedback
 from cvxid.model.input_delay import InputDelay
-from cvxid.model.equation import DELAYED, ModelSpec
+from cvxid.model.equation import ModelSpec
 from cvxid.model.library import CATALOGUE, PARAMETERS, Effect, Library, coordinate_effect, declared_effect, resolve_term
 from cvxid.model.system import SystemSpec
-from cvxid.model.terms import Derivative, parse_term
+from cvxid.model.terms import DELAYED, Derivative, parse_term
 from cvxid.parallel import BACKENDS, check_backend
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import KINDS, WINDOWS, Windows
@@ -500,6 +500,13 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
     )
 
 
+def _constrained(name: str, coordinates: tuple[str, ...]) -> str:
+    """A ``nonnegative`` entry's column name: a term's, or the delayed feedback's as written
+    (:class:`~cvxid.model.equation.ModelSpec` refuses a sign on it, by name)."""
+    bare = re.sub(r"\s+", "", name)
+    return bare if bare.endswith(DELAYED) else parse_term(name, coordinates).name
+
+
 def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> tuple[ModelSpec, tuple | None]:
     """One equation's model; in a coupled spec ``others`` are the coordinates its terms and
     its delayed feedback may read."""
@@ -582,8 +589,7 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
             raise CvxidError(f"spec: [{where}.names] {k} must be a term name string, got {v!r}")
         names[k] = v
     alg = _table(table, "algebraic", where, {"n", "m", "keep_initial_conditions"})
-    nonneg = tuple(re.sub(r"\s+", "", n) if re.sub(r"\s+", "", n).endswith(DELAYED) else parse_term(n, coords).name
-                   for n in _strings(cons, "nonnegative", f"{where}.constraints"))  # (the feedback: refused by name)
+    nonneg = tuple(_constrained(n, coords) for n in _strings(cons, "nonnegative", f"{where}.constraints"))
     columns = set(library.names) | {coord + "''"}
     for pname, tname in names.items():
         if parse_term(tname.lstrip("- "), coords).name not in columns:
