@@ -74,6 +74,40 @@ def test_small_spec_recovers_structure_and_parameters(tmp_path):
     assert "x^3" in result.model.equation() and "x(t - " in result.model.equation()
 
 
+def test_records_from_memory_give_the_spec_runs_numbers(tmp_path):
+    """A spec without [data], its records given from Python (Experiments or DataFrames
+    named as the spec names them), identifies what the same spec reading its own records
+    does; bad records are named."""
+    import pandas as pd
+
+    from cvxid.errors import CvxidError
+
+    path = write_spec(tmp_path)
+    spec = load_problem(path)
+    train, test = spec.experiment("train"), spec.experiment("test")
+    model_only = tmp_path / "model.toml"
+    model_only.write_text(re.sub(r"\[data\.(train|test)\.simulate\][^\[]*\[[^\]]*\]\n", "", path.read_text()))
+    assert "[data" not in model_only.read_text()
+    reference = run(path)
+    frames = [pd.DataFrame({"t": e.time, "x": e.outputs["x"], "f": e.inputs["f"], "x'": e.velocities["x"]})
+              for e in (train, test)]  # (the spec's velocity = "measured" reads x')
+    for records in ((train, test), frames):
+        result = run(model_only, train=records[0], test=records[1])
+        assert result.model.coefficients == pytest.approx(reference.model.coefficients, rel=1e-9)
+        assert result.model.physical["k1"] == pytest.approx(4.0, rel=0.01)
+        assert result.test_mse == pytest.approx(reference.test_mse, rel=1e-9)
+    with pytest.raises(CvxidError, match="train must be a cvxid.Experiment or a pandas DataFrame, got ndarray"):
+        run(model_only, train=np.zeros((100, 3)))
+    with pytest.raises(CvxidError, match=r"no column named 'x'; available: f, t, x', y.*name its columns as the spec does \(t, x, f, x'\)"):
+        run(model_only, train=frames[0].rename(columns={"x": "y"}))
+    with pytest.raises(CvxidError, match=r"train has no input 'f' in its inputs \(it has 'u'\)"):
+        run(model_only, train=replace(train, inputs={"u": train.inputs["f"]}))
+    with pytest.raises(CvxidError, match="test is given without train"):
+        run(model_only, test=test)
+    with pytest.raises(CvxidError, match=r"missing section \[data\].*cvxid.run\(spec, train="):
+        run(model_only)
+
+
 def test_cli_writes_result_json(tmp_path):
     out = tmp_path / "out"
     assert main(["run", str(write_spec(tmp_path)), "--out", str(out)]) == 0

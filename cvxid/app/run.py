@@ -54,13 +54,21 @@ from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
 
 
-def run(spec) -> RunResult:
+def run(spec, train=None, test=None) -> RunResult:
     """Identify the system of a problem spec (a parsed spec or a path to one).  Its
     warnings are in ``result.warnings`` (and ``result.json``), and each is issued once to
     the caller, in its own category (a :class:`~cvxid.errors.CvxidWarning`), after the run:
-    a caller that turns warnings into errors gets the first as an exception."""
+    a caller that turns warnings into errors gets the first as an exception.
+
+    ``train`` and ``test`` (an :class:`~cvxid.data.experiment.Experiment` or a pandas
+    DataFrame each) are records from memory in place of the spec's ``[data]``, which the
+    spec may then leave out (:meth:`~cvxid.spec.problem.ProblemSpec.with_data`)."""
+    if train is None and test is not None:
+        raise CvxidError("run: test is given without train; pass train=… too (or neither, and the spec's [data])")
     if isinstance(spec, (str, FilePath)):
-        spec = load_problem(spec)
+        spec = load_problem(spec, data_required=train is None)
+    if train is not None:
+        spec = spec.with_data(train, test)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught, engine(spec.fit.backend, spec.fit.scheduler):
         warnings.simplefilter("always", CvxidWarning)

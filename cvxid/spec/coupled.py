@@ -53,7 +53,8 @@ def is_joint(raw: Table) -> bool:
     return isinstance(model, Mapping) and "equation" in model
 
 
-def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
+def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem",
+                        data_required: bool = True) -> ProblemSpec:
     unknown = set(raw) - JOINT_TOP_KEYS
     if unknown:
         raise CvxidError(f"spec: unknown top-level key(s) {', '.join(sorted(unknown))}; allowed: "
@@ -66,7 +67,7 @@ def parse_joint_problem(raw: Table, folder: Path, default_name: str = "problem")
     if fit.velocity not in VELOCITIES:
         raise CvxidError(f"spec: [fit] velocity of a coupled spec must be one of {', '.join(VELOCITIES)}, got "
                          f"'{fit.velocity}'")
-    data = data_sections(raw)
+    data = data_sections(raw, data_required)
     truth = _truth(raw, equations) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section with [[truth.equation]] tables")

@@ -17,26 +17,28 @@ from cvxid.spec.coupled import is_joint, parse_joint_problem
 from cvxid.spec.problem import ProblemSpec, Table, parse_single_problem
 
 
-def load_problem(path) -> ProblemSpec:
+def load_problem(path, data_required: bool = True) -> ProblemSpec:
     """Read and check a TOML problem spec: a file, or a shipped problem's name
-    (``cvxid problems`` lists them)."""
+    (``cvxid problems`` lists them).  With ``data_required`` false the spec may leave out
+    ``[data]``: its records are then given from Python
+    (:meth:`~cvxid.spec.problem.ProblemSpec.with_data`, ``cvxid.run(spec, train=…)``)."""
     path = resolve_spec(path)
     try:
         raw = tomllib.loads(path.read_text(encoding="utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise CvxidError(f"{path}: not valid TOML ({exc})") from None
-    return parse_problem(raw, path.parent.resolve(), default_name=path.stem)
+    return parse_problem(raw, path.parent.resolve(), default_name=path.stem, data_required=data_required)
 
 
-def parse_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
+def parse_problem(raw: Table, folder: Path, default_name: str = "problem", data_required: bool = True) -> ProblemSpec:
     """The :class:`~cvxid.spec.problem.ProblemSpec` of one equation (``[model]`` or a
     single ``[[model.equation]]``) or of several."""
     if not is_joint(raw):
-        return parse_single_problem(raw, folder, default_name)
+        return parse_single_problem(raw, folder, default_name, data_required)
     equations = raw["model"].get("equation")
     if isinstance(equations, list) and len(equations) == 1:
-        return parse_single_problem(single_equation_form(raw), folder, default_name)
-    return parse_joint_problem(raw, folder, default_name)
+        return parse_single_problem(single_equation_form(raw), folder, default_name, data_required)
+    return parse_joint_problem(raw, folder, default_name, data_required)
 
 
 def single_equation_form(raw: Table) -> dict:

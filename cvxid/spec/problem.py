@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from cvxid.data.excitation import excitation
-from cvxid.data.experiment import Experiment, load, part_bounds
+from cvxid.data.experiment import Experiment, from_frame, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.bootstrap import BootstrapSettings
@@ -155,7 +155,7 @@ def _same_file(folder: Path, table: Table, other: Table) -> bool:
     """Whether two data tables read the same file."""
     try:
         return (folder / str(table["file"])).resolve() == (folder / str(other["file"])).resolve()
-    except (KeyError, OSError):
+    except (KeyError, TypeError, OSError):  # (a record given from Python has no file)
         return False
 
 
@@ -214,8 +214,11 @@ class ProblemSpec:
     def experiment(self, which: str) -> Experiment:
         """Load or simulate the ``train`` or ``test`` experiment."""
         if which not in self.data:
-            raise CvxidError(f"spec '{self.name}' has no [data.{which}] section")
+            raise CvxidError(f"spec '{self.name}' has no [data.{which}] section: add one (a file or a simulation), "
+                             f"or give the record from Python (cvxid.run(spec, {which}=…))")
         table, where = self.data[which], f"data.{which}"
+        if isinstance(table, Experiment):  # given from Python (with_data)
+            return table
         if "simulate" not in table:
             return self._loaded(which, table, where)
         if self.fit.velocity not in VELOCITIES:
@@ -230,6 +233,54 @@ class ProblemSpec:
         if "samples" not in table and "fraction" not in table:
             return experiment
         return experiment.slice(*part_bounds(experiment.n, table.get("samples"), table.get("fraction"), where))
+
+    def with_data(self, train, test=None) -> "ProblemSpec":
+        """This spec with its records given from Python, in place of its ``[data]``.
+
+        Parameters
+        ----------
+        train, test : Experiment or pandas.DataFrame
+            The training record and (optional; a ``[diagnose]`` needs it) the test
+            record.  An :class:`~cvxid.data.experiment.Experiment` is taken as given (its
+            outputs must hold the spec's coordinates, its inputs the equations' inputs); a
+            DataFrame is read by the spec's names (a time column ``t``, a column per
+            coordinate and input, and with ``velocity = "measured"`` the velocity ``x'``)
+            and its outputs checked for sensor faults, as a file's.
+        """
+        records = {"train": train} if test is None else {"train": train, "test": test}
+        data = {which: self._given(which, record) for which, record in records.items()}
+        if test is None and self.diagnose is not None:
+            raise CvxidError("with_data: the spec's [diagnose] compares the models on a test record: pass test=… "
+                             "(an Experiment or a DataFrame), or remove [diagnose]")
+        return replace(self, data=data)
+
+    def _given(self, which: str, record) -> Experiment:
+        """A record given from Python (:meth:`with_data`) as a checked Experiment."""
+        import pandas as pd
+
+        inputs = sorted({s.input_column for s in self.equations.values()})
+        measured = self.fit.velocity not in ESTIMATORS  # "measured", or a column's name
+        if isinstance(record, pd.DataFrame):
+            first = self.coordinates[0]  # its measured velocity: [fit] velocity's column, else x' for "measured"
+            velocity = self.fit.velocity if self.fit.velocity not in VELOCITIES else f"{first}'" if measured else None
+            columns = ["t", *self.coordinates, *inputs, *([velocity] if velocity else [])]
+            try:
+                record = from_frame(record, time="t", outputs=list(self.coordinates), inputs=inputs,
+                                    velocities={first: velocity} if velocity else None, name=which)
+            except CvxidError as exc:
+                raise CvxidError(f"with_data: {which} (a DataFrame) {exc}; name its columns as the spec does "
+                                 f"({', '.join(columns)})") from None
+        if not isinstance(record, Experiment):
+            raise CvxidError(f"with_data: {which} must be a cvxid.Experiment or a pandas DataFrame, got "
+                             f"{type(record).__name__}")
+        for group, names, what in (("outputs", self.coordinates, "coordinate"), ("inputs", inputs, "input"),
+                                   ("velocities", self.coordinates if measured else (), "measured velocity")):
+            missing = [n for n in names if n not in getattr(record, group)]
+            if missing:
+                raise CvxidError(f"with_data: {which} has no {what} {', '.join(map(repr, missing))} in its {group} "
+                                 f"(it has {', '.join(map(repr, getattr(record, group))) or 'none'}); name them as "
+                                 "the spec's [model] does")
+        return record if record.name != Experiment.name else replace(record, name=which)
 
     def warn_overlap(self, train: Experiment, test: Experiment) -> None:
         """Warn when ``test``, read from ``train``'s own file, holds samples of ``train``'s
@@ -305,8 +356,10 @@ FIT_KEYS = {"estimator", "lambdas", "velocity", "solver", "debias", "selection",
             "refine", "window", "loss", "allow_large", "backend", "scheduler", "stability", "prune"}
 
 
-def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem") -> ProblemSpec:
-    """A :class:`ProblemSpec` from a spec with one ``[model]`` table."""
+def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem",
+                         data_required: bool = True) -> ProblemSpec:
+    """A :class:`ProblemSpec` from a spec with one ``[model]`` table (without ``[data]``
+    when ``data_required`` is false: :func:`data_sections`)."""
     unknown = set(raw) - TOP_KEYS
     if unknown:
         raise CvxidError(
@@ -318,7 +371,7 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
     check_selection(fit, {model.coordinate: model}, {} if polynomial is None else {model.coordinate: polynomial})
-    data = data_sections(raw)
+    data = data_sections(raw, data_required)
     truth = _truth(raw, model) if "truth" in raw else None
     if truth is None and any("simulate" in t for t in data.values()):
         raise CvxidError("spec: simulated data needs a [truth] section describing the true system")
@@ -390,9 +443,16 @@ def ties_of(model: Table, columns: list[str], written: str) -> tuple[tuple[str, 
     return tuple(stars)
 
 
-def data_sections(raw: Table) -> dict[str, dict]:
+def data_sections(raw: Table, required: bool = True) -> dict[str, dict]:
     """The checked ``[data.train]`` (required) and ``[data.test]`` tables: each a file or a
-    simulation; ``[data.test]`` required by a ``[diagnose]``."""
+    simulation; ``[data.test]`` required by a ``[diagnose]``.  With ``required`` false a
+    spec may have no ``[data]`` (its records are given from Python:
+    :meth:`ProblemSpec.with_data`)."""
+    if "data" not in raw:
+        if not required:
+            return {}
+        raise CvxidError("spec: missing section [data]: add [data.train] (a file, or a [data.train.simulate] table); "
+                         "from Python the records may be given instead: cvxid.run(spec, train=…, test=…)")
     data_table = _table(raw, "data", "", {"train", "test"}, required=True)
     data = {k: _table(data_table, k, "data", DATA_KEYS) for k in data_table}
     if "train" not in data:
