@@ -89,6 +89,23 @@ def test_npz_and_dataframe_loaders(tmp_path):
         from_frame(frame, time="time", outputs={"x": "v"}, inputs={})
 
 
+def test_a_time_column_in_milliseconds_reads_as_seconds_with_its_velocities():
+    """``time_unit = "ms"``: the time (epoch stamps too, their steps kept) in seconds, a
+    measured velocity per ms converted to per second; a unit cvxid does not know is named."""
+    import pandas as pd
+
+    from cvxid import from_frame
+
+    ms = 1.7e12 + np.arange(T.size) * 1e3 * (T[1] - T[0])  # epoch milliseconds
+    frame = pd.DataFrame({"t": ms, "x": np.sin(T), "v": np.cos(T) * 1e-3, "f": np.cos(T)})
+    e = from_frame(frame, time="t", outputs="x", inputs="f", velocities="v", time_unit="ms")
+    np.testing.assert_allclose(np.diff(e.time), np.diff(T), rtol=0, atol=5e-7)  # (epoch seconds' own rounding)
+    assert e.time[0] == pytest.approx(1.7e9) and e.time[-1] - e.time[0] == pytest.approx(T[-1], abs=5e-7)
+    np.testing.assert_allclose(e.velocities["x"], np.cos(T), rtol=1e-12)
+    with pytest.raises(CvxidError, match="time_unit must be one of s, ms, us, min, h .* got 'msec'"):
+        from_frame(frame, time="t", outputs="x", inputs="f", time_unit="msec")
+
+
 def test_gaps_split_into_segments_and_restart_the_integrals():
     from cvxid.model.equation import ModelSpec
     from cvxid.model.library import Library

@@ -171,6 +171,41 @@ def test_init_searches_delays_on_the_record_s_own_time_scale(tmp_path, time_unit
     assert tau_max > 0.15 * slow * time_unit  # the delay of the record's system lies inside the range searched
 
 
+@pytest.mark.parametrize("header, arguments", [
+    ("time_ms,x,f", []),                 # the unit read off the column's name
+    ("t [ms],x,f", []),
+    ("t,x,f", ["--time-unit", "ms"]),    # or given
+])
+def test_init_reads_a_time_column_in_milliseconds_as_seconds(tmp_path, header, arguments):
+    """A fourth outside check: a record timed in ms was labelled in seconds ("dt = 1 s",
+    "95 % interval 0 … 375 s") and its delay range was in ms.  A time column whose name
+    says ms (or --time-unit ms) is written as ``time_unit = "ms"``: the run reads the same
+    record, in seconds, as the record timed in seconds, and searches the same delays."""
+    record = simulated_record()
+    np.savetxt(tmp_path / "ms.csv", np.column_stack([record.time * 1e3, record.output("x"), record.input("f")]),
+               delimiter=",", header=header, comments="")
+    assert main(["init", str(tmp_path / "ms.csv"), "-o", str(tmp_path / "ms.toml"), *arguments]) == 0
+    text = (tmp_path / "ms.toml").read_text()
+    assert 'time_unit = "ms"' in text and "dt = 0.001 s" in text
+    spec = load_problem(tmp_path / "ms.toml")
+    train = spec.experiment("train")
+    np.testing.assert_allclose(train.time, record.time[:train.n], rtol=0, atol=1e-12)
+    assert 0.5 <= spec.model.delay.tau_max <= 0.55  # as for the record timed in seconds (above)
+
+
+def test_a_time_unit_beside_a_sample_step_or_unknown_is_named(tmp_path, capsys):
+    _base_csv(tmp_path / "r.csv")
+    assert main(["init", str(tmp_path / "r.csv"), "-o", str(tmp_path / "r.toml"), "--dt", "0.001",
+                 "--time-unit", "ms"]) == 2
+    assert "--time-unit is the time column's unit, and --dt is in seconds" in capsys.readouterr().err
+    spec = tmp_path / "s.toml"
+    for table, said in (('time = "t"\ntime_unit = "fortnights"', "time_unit must be one of s, ms, us, min, h"),
+                        ('dt = 0.001\ntime_unit = "ms"', "time_unit is the unit of a file's time column")):
+        spec.write_text(f'[model]\n[data.train]\nfile = "r.csv"\n{table}\noutput = "x"\ninput = "f"\n')
+        with pytest.raises(CvxidError, match=said):
+            load_problem(spec)
+
+
 def _base_csv(path, header="t,x,f", rows=2000, extra=None):
     """A small record (t, x, f and ``extra`` columns) written with ``header``."""
     t = np.arange(rows) * 1e-3
@@ -179,9 +214,9 @@ def _base_csv(path, header="t,x,f", rows=2000, extra=None):
 
 
 @pytest.mark.parametrize("arguments, said", [
-    (["--dt", "-1"], "--dt must be the sample step, a positive number of time units, got -1"),
-    (["--dt", "nan"], "--dt must be the sample step, a positive number of time units, got nan"),
-    (["--dt", "0"], "--dt must be the sample step, a positive number of time units, got 0"),
+    (["--dt", "-1"], "--dt must be the sample step, a positive number of seconds, got -1"),
+    (["--dt", "nan"], "--dt must be the sample step, a positive number of seconds, got nan"),
+    (["--dt", "0"], "--dt must be the sample step, a positive number of seconds, got 0"),
     (["--time", "t", "--dt", "0.001"], "give the time column (--time t) or the sample step (--dt 0.001), not both"),
     (["--time", "x"], "the time column 'x' does not increase from data row"),
 ])

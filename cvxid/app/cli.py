@@ -15,6 +15,7 @@ import threading
 import warnings
 
 from cvxid import __version__
+from cvxid.data.experiment import TIME_UNITS
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.parallel import BACKENDS
 from cvxid.progress import set_quiet
@@ -81,7 +82,8 @@ def _with_engine(spec: str, backend: str | None, scheduler: str | None):
 def _init(args) -> int:
     from cvxid.app.starting_spec import init
 
-    path = init(args.data, args.out, args.test, args.time, args.output, args.input, args.dt, args.force)
+    path = init(args.data, args.out, args.test, args.time, args.output, args.input, args.dt, args.force,
+                args.time_unit)
     print(f"wrote {path}: run it with `cvxid run {path} --out out/`")
     return 0
 
@@ -295,7 +297,10 @@ def main(argv=None) -> int:
     p_init.add_argument("--time", default=None, help="the time column (default: found by name or by its steps)")
     p_init.add_argument("--output", default=None, help="the measured coordinate's column (default: found)")
     p_init.add_argument("--input", default=None, help="the input's column (default: found)")
-    p_init.add_argument("--dt", type=float, default=None, help="the sample step, for a file without a time column")
+    p_init.add_argument("--dt", type=float, default=None, help="the sample step in seconds, for a file without a "
+                        "time column")
+    p_init.add_argument("--time-unit", default=None, choices=list(TIME_UNITS), help="the unit the time column counts "
+                        "(default: read off its name, e.g. time_ms, else seconds); cvxid reads it as seconds")
     p_init.add_argument("--force", action="store_true", help="replace an existing spec file")
     p_bench = sub.add_parser("bench", help="time the lambda path against the baselines", parents=[quiet, engines])
     p_bench.add_argument("spec", nargs="?", help="a TOML problem spec (none with --heldout)")

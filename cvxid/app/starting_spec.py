@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS, first_step_back, first_text, missing_rows
+from cvxid.data.experiment import READERS, first_step_back, first_text, missing_rows, seconds_per
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -47,10 +47,13 @@ class Columns:
     why: str
     median_period: float = 0.0
     """The period of the output's median frequency (half its variance lies below it, above
-    the noise floor: :func:`~cvxid.metrics.band_edge`), in the time column's unit."""
+    the noise floor: :func:`~cvxid.metrics.band_edge`), in seconds."""
     gaps: bool = False
     """Whether the output or the input has missing (empty or NaN) samples: the spec loads
     them as gaps (``gaps = true``)."""
+    time_unit: str = "s"
+    """The time column's unit (``--time-unit``, or read off its name: ``time_ms``,
+    ``t [us]``); ``dt`` and ``median_period`` are in seconds."""
 
 
 def _numeric(columns: dict) -> dict[str, np.ndarray]:
@@ -70,6 +73,18 @@ def _words(name: str) -> list[str]:
     ``"motor_cmd"`` -> ``["motor", "cmd"]``."""
     plain = re.sub(r"[\[(].*?[\])]", " ", name.lower())
     return [w for w in re.split(r"[^a-z0-9]+", plain) if w]
+
+
+UNIT_NAMES = {"ms": ("ms", "msec", "millis", "millisecond", "milliseconds"),
+              "us": ("us", "usec", "micros", "microsecond", "microseconds")}
+"""A time column's name words (its bracketed units included) that give its unit."""
+
+
+def unit_of(name: str) -> str:
+    """The unit a time column's name gives (``"time_ms"``, ``"t [ms]"``: ``"ms"``), else
+    seconds."""
+    words = re.split(r"[^a-z0-9]+", name.lower())
+    return next((unit for unit, names in UNIT_NAMES.items() if any(w in names for w in words)), "s")
 
 
 def _named(names, wanted, what: str | None = None) -> str | None:
@@ -118,8 +133,9 @@ def _listing(numeric: dict, dropped: dict) -> str:
 
 
 def detect_columns(columns: dict, time: str | None = None, output: str | None = None, input: str | None = None,
-                   dt: float | None = None) -> Columns:
-    """The time, output and input columns (see the module docstring)."""
+                   dt: float | None = None, time_unit: str | None = None) -> Columns:
+    """The time, output and input columns (see the module docstring); ``time_unit`` the
+    time column's (default: read off its name, :func:`unit_of`)."""
     rows = max((np.size(v) for v in columns.values()), default=0)
     if rows < 2:
         raise CvxidError(f"the file has {rows} data row{'s' if rows != 1 else ''}: nothing to identify")
@@ -132,8 +148,13 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if time is not None and dt is not None:
         raise CvxidError(f"give the time column (--time {time}) or the sample step (--dt {dt:g}), not both")
     if dt is not None and not (np.isfinite(dt) and dt > 0):
-        raise CvxidError(f"--dt must be the sample step, a positive number of time units, got {dt:g}")
-    reasons = []
+        raise CvxidError(f"--dt must be the sample step, a positive number of seconds, got {dt:g}")
+    if dt is not None and time_unit is not None:
+        raise CvxidError(f"--time-unit is the time column's unit, and --dt is in seconds: give --dt {dt:g} in "
+                         "seconds without --time-unit")
+    reasons, given_unit = [], time_unit is not None
+    if given_unit:
+        seconds_per(time_unit)  # (a wrong unit before the file is read through)
     if time is None and dt is None:
         time = _named(numeric, TIME_NAMES)
         if time is None:
@@ -183,6 +204,11 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
                              "digits), give the sample step with --dt instead of a time column")
         lost = missing_rows(t)  # rows lost from a uniform record: the median step, and gaps where they were
         dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(np.diff(t)))
+        time_unit = time_unit or unit_of(time)
+        if time_unit != "s":
+            dt *= seconds_per(time_unit)
+            how = "--time-unit" if given_unit else "by the column's name"
+            reasons.append(f"the time counts {time_unit} ({how}), read as seconds")
         if lost is not None:
             reasons.append(f"{int(lost[-1]) + 1 - t.size} rows missing from the time column, loaded as gaps")
             samples = int(lost[-1]) + 1  # (the record's grid: its duration and delay range count the lost rows)
@@ -192,7 +218,8 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if gaps:
         reasons.append("missing samples in the output or the input, loaded as gaps")
     gaps = gaps or lost is not None
-    return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps)
+    return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps,
+                   time_unit or "s")
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -215,6 +242,9 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
     lines = [f"[data.{which}]", f"file = {_quoted(file)}"]
     lines.append(f"time = {_quoted(columns.time)}" if columns.time else f"dt = {columns.dt:g}                       "
                  "# the file has no time column: samples are this many seconds apart")
+    if columns.time_unit != "s":
+        lines.append(f'time_unit = "{columns.time_unit}"                # the time column counts {columns.time_unit}: '
+                     "cvxid reads it as seconds")
     lines.append(f"output = {{ {coordinate} = {_quoted(columns.output)} }}")
     lines.append(f"input = {{ {force} = {_quoted(columns.input)} }}")
     if fraction:
@@ -229,7 +259,7 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
 def longest_delay(median_period: float, usable: float) -> float:
     """The starting spec's ``tau_max``: an eighth of the period of the output's median
     frequency (:attr:`Columns.median_period`), at least 0.5, at most a tenth of the
-    ``usable`` record, in the time column's unit (3 significant digits).  A slow plant's
+    ``usable`` record, in seconds (3 significant digits).  A slow plant's
     delay may be seconds; an ordinary one keeps the documented 0.5 s
     (``examples/init_delay_range.py``)."""
     return float(f"{min(usable / 10, max(0.5, median_period / 8)):.3g}")
@@ -291,7 +321,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
     return "\n".join(parts)
 
 
-def init(data, out, test=None, time=None, output=None, input=None, dt=None, overwrite: bool = False) -> Path:
+def init(data, out, test=None, time=None, output=None, input=None, dt=None, overwrite: bool = False,
+         time_unit: str | None = None) -> Path:
     """Write the starting spec for ``data`` to ``out`` (refusing to replace a file unless
     ``overwrite``); returns its path."""
     data, out = Path(data), Path(out)
@@ -305,7 +336,7 @@ def init(data, out, test=None, time=None, output=None, input=None, dt=None, over
             raise CvxidError(f"data file not found: {path}")
     if out.exists() and not overwrite:
         raise CvxidError(f"{out} exists; choose another -o or pass --force to replace it")
-    columns = detect_columns(READERS[data.suffix.lower()][0](data), time, output, input, dt)
+    columns = detect_columns(READERS[data.suffix.lower()][0](data), time, output, input, dt, time_unit)
     text = starting_spec(data, columns, test, out.parent)
     out.parent.mkdir(parents=True, exist_ok=True)  # (the spec's paths are relative to it)
     try:  # the records as cvxid run will read them: a spec that runs as written, or the reason now

@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -475,6 +475,7 @@ def load(
     dt: float | None = None,
     samples: tuple[int, int] | None = None,
     fraction: tuple[float, float] | None = None,
+    time_unit: str = "s",
 ) -> Experiment:
     """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
@@ -486,7 +487,8 @@ def load(
     frozen stretch, outlier samples; :mod:`cvxid.data.sensor`): ``faults = "warn"`` warns
     about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
     ``samples = (first, end)`` then ``fraction = (start, end)`` keep a part of the record
-    (before the check: its messages count the part's samples).
+    (before the check: its messages count the part's samples).  ``time_unit`` is the
+    time column's unit (:data:`TIME_UNITS`): the experiment's time is in seconds.
     """
     outputs, inputs, velocities = _named(outputs, inputs, velocities)
     path = Path(path)
@@ -500,13 +502,17 @@ def load(
     if time is None:
         if dt is None:
             raise CvxidError(f"{path}: give the time column, or the sample step dt when the file has none")
+        if time_unit != "s":
+            raise CvxidError(f"{path}: time_unit is the time column's unit, and dt is in seconds: give dt in "
+                             "seconds without time_unit")
         first = np.ravel(_pick(columns, next(iter(outputs.values())), what, path))
         time, columns = "__time", {**columns, "__time": np.arange(first.size) * float(dt)}
     if samples is not None or fraction is not None:
         used = [time, *outputs.values(), *inputs.values(), *(velocities or {}).values()]
         a, b = part_bounds(_common_length(columns, used, what, path), samples, fraction, path)
         columns = {**columns, **{c: np.squeeze(columns[c])[a:b] for c in used}}
-    return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults)
+    return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults,
+                       time_unit)
 
 
 def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what: str, path: Path) -> int:
@@ -531,11 +537,34 @@ def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what:
 
 def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],
                velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False,
-               faults: str = "warn") -> Experiment:
-    """An experiment from a pandas DataFrame, by column names (sensor check as :func:`load`)."""
+               faults: str = "warn", time_unit: str = "s") -> Experiment:
+    """An experiment from a pandas DataFrame, by column names (sensor check and
+    ``time_unit`` as :func:`load`)."""
     outputs, inputs, velocities = _named(outputs, inputs, velocities)
     columns = {str(c): frame[c].to_numpy() for c in frame.columns}
-    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults)
+    return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults,
+                       time_unit)
+
+
+TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0}
+"""Units a time column may count (seconds per unit); cvxid's time is in seconds."""
+
+
+def seconds_per(unit: str) -> float:
+    """Seconds per ``unit`` of a time column (:data:`TIME_UNITS`), or a clear error."""
+    if unit not in TIME_UNITS:
+        raise CvxidError(f"time_unit must be one of {', '.join(TIME_UNITS)} (the time column's unit), got {unit!r}")
+    return TIME_UNITS[unit]
+
+
+def in_seconds(experiment: Experiment, unit: str) -> Experiment:
+    """``experiment`` whose time counts ``unit`` (:data:`TIME_UNITS`) with its time in
+    seconds, and its measured velocities (per ``unit``) per second."""
+    scale, t = seconds_per(unit), experiment.time
+    if scale == 1.0:
+        return experiment
+    return replace(experiment, time=t[0] * scale + (t - t[0]) * scale,  # (steps scaled apart from the start:
+                   velocities={k: v / scale for k, v in experiment.velocities.items()})  # epoch stamps keep them)
 
 
 def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
@@ -564,7 +593,9 @@ def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
     return outputs, inputs, dict(zip(outputs, listed))
 
 
-def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults) -> Experiment:
+def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults,
+                time_unit: str = "s") -> Experiment:
+    seconds_per(time_unit)  # (a wrong unit before the record is read)
     named = [("a measured output", outputs), ("an input", inputs), ("a measured velocity", velocities or {})]
     for i, (first, a) in enumerate(named):
         for second, b in named[i + 1:]:
@@ -584,4 +615,5 @@ def _experiment(columns, what, source, time, outputs, inputs, velocities, name, 
     # smooth a clipped top away): on the sample index first, then on the recorded time
     recorded = checked(Experiment(np.arange(np.size(t), dtype=float), signals[0], signals[1], name=name,
                                   velocities=signals[2], gaps=gaps), faults)
-    return Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2], gaps=recorded.gaps)
+    return in_seconds(Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2],
+                                 gaps=recorded.gaps), time_unit)

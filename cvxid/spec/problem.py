@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from cvxid.data.excitation import excitation
-from cvxid.data.experiment import Experiment, from_frame, load, part_bounds
+from cvxid.data.experiment import TIME_UNITS, Experiment, from_frame, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.bootstrap import BootstrapSettings
@@ -322,6 +322,7 @@ class ProblemSpec:
             faults=_string(table, "faults", where, "warn", choices=FAULT_HANDLING),
             samples=table.get("samples"),
             fraction=table.get("fraction"),
+            time_unit=_string(table, "time_unit", where, "s"),
         )
 
     def __repr__(self) -> str:
@@ -346,7 +347,8 @@ def _unknown_velocity(velocity: str, why: str) -> CvxidError:
                       f"measured column: {why}")
 
 
-DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples"}
+DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples",
+             "time_unit"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
               "input_delay"}
@@ -477,6 +479,11 @@ def data_sections(raw: Table, required: bool = True) -> dict[str, dict]:
                                                                       for v in part) or not 0 <= part[0] < part[1]):
                 raise CvxidError(f"spec: [{where}] samples must be [first, end] sample indices with 0 <= first < end (the "
                                  f"samples used, end excluded, e.g. [40650, 105712]), got {part!r}")
+        if "time_unit" in table:
+            if "file" not in table or "dt" in table:
+                raise CvxidError(f"spec: [{where}] time_unit is the unit of a file's time column (dt is in seconds, "
+                                 "a simulation's time too): remove it, or give the time column")
+            _string(table, "time_unit", where, choices=tuple(TIME_UNITS))
         if "faults" in table:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
