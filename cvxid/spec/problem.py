@@ -261,12 +261,13 @@ class ProblemSpec:
         inputs = sorted({s.input_column for s in self.equations.values()})
         measured = self.fit.velocity not in ESTIMATORS  # "measured", or a column's name
         if isinstance(record, pd.DataFrame):
-            first = self.coordinates[0]  # its measured velocity: [fit] velocity's column, else x' for "measured"
-            velocity = self.fit.velocity if self.fit.velocity not in VELOCITIES else f"{first}'" if measured else None
-            columns = ["t", *self.coordinates, *inputs, *([velocity] if velocity else [])]
+            # measured velocities: [fit] velocity's column (one equation), else x' for each coordinate x
+            velocities = {self.coordinates[0]: self.fit.velocity} if self.fit.velocity not in VELOCITIES else \
+                {c: f"{c}'" for c in self.coordinates} if measured else {}
+            columns = ["t", *self.coordinates, *inputs, *velocities.values()]
             try:
                 record = from_frame(record, time="t", outputs=list(self.coordinates), inputs=inputs,
-                                    velocities={first: velocity} if velocity else None, name=which)
+                                    velocities=velocities or None, name=which)
             except CvxidError as exc:
                 raise CvxidError(f"with_data: {which} (a DataFrame) {exc}; name its columns as the spec does "
                                  f"({', '.join(columns)})") from None
