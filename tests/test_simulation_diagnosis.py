@@ -258,3 +258,30 @@ def test_a_re_polish_the_test_record_judges_worse_is_dropped_with_a_warning(monk
                                           "standard errors'"):
         out = refine_by_simulation(lacking, record(0), record(1), ["cubic_stiffness"])
     assert out.polish.parameters["x^3"] == pytest.approx(TRUTH["x^3"], rel=0.05) and out.polish.profile is None
+
+
+def test_an_effect_the_final_polish_takes_to_zero_is_not_reported_kept(monkeypatch):
+    """A sixth outside check: the simulation stage reported a Coulomb friction kept while
+    the final model's coefficient was exactly 0 (the final polish held it at its bound).
+    Here the final polish is made to do that to the cubic stiffness (and the test record
+    not to object): the step says it is not kept, and a warning says why."""
+    from dataclasses import replace
+
+    import cvxid.diagnosis.simulation as stage
+    from cvxid import CvxidWarning
+
+    real = stage.polish
+
+    def to_zero(system, train, **settings):
+        fit = real(system, train, **settings)
+        model = fit.system.single
+        return replace(fit, system=replace(fit.system, models={
+            "x": replace(model, coefficients=dict(model.coefficients, **{"x^3": 0.0}))}))
+
+    monkeypatch.setattr(stage, "polish", to_zero)
+    monkeypatch.setattr(stage, "_no_worse", lambda residual, judged: True)
+    lacking = polished(("x'", "x"))
+    with pytest.warns(CvxidWarning, match=r"kept cubic_stiffness \(x\^3\) on the test record, and the final polish "
+                                          "took its coefficient to 0"):
+        out = refine_by_simulation(lacking, record(0), record(1), ["cubic_stiffness"])
+    assert out.steps[0].added == "cubic_stiffness" and not out.steps[0].kept

@@ -223,6 +223,16 @@ def _with_candidate(system: IdentifiedSystem, candidate: Candidate, train: Exper
     return replace(system, models=models)
 
 
+def _holds(system: IdentifiedSystem, effect: str, term: str) -> bool:
+    """Whether ``system`` holds an added ``effect`` (its ``term``): its coefficient in some
+    equation, or the input's delay, is not 0.  One held at its bound of 0 adds nothing,
+    however the test error moved with the other parameters' further polish (an outside
+    check: a Coulomb friction "kept", at exactly 0 in the final model)."""
+    if effect == "input_delay":
+        return any(m.spec.input_tau != 0 for m in system.models.values())
+    return any(m.coefficients.get(term, 0.0) != 0 for m in system.models.values())
+
+
 def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | None:
     """The free run's error on the test record, every coordinate's one after another (None
     when it diverges)."""
@@ -288,6 +298,13 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
                 "profile over the delay: a trade between the delay, a free gain and the stiffness is not in them)",
                 CvxidWarning, stacklevel=2)
         current = replace(kept, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
+        dropped = [s for s in steps if s.kept and not _holds(current.system, s.added, s.term)]
+        if dropped:
+            warnings.warn(
+                f"the diagnosis by simulation error kept {', '.join(f'{s.added} ({s.term})' for s in dropped)} on the "
+                "test record, and the final polish took its coefficient to 0 (its bound): the final model does not "
+                "hold it", CvxidWarning, stacklevel=2)
+            steps = [replace(s, kept=False) if s in dropped else s for s in steps]
     return SimulationRefinement(current, steps, rankings, precise)
 
 
@@ -320,5 +337,5 @@ def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, 
     new = float(after @ after) if after is not None and after.size == before.size else np.inf
     tried = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
                            float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),
-                           float(np.sqrt(bound / before.size)), bool(new < bound))
+                           float(np.sqrt(bound / before.size)), bool(new < bound and _holds(fitted.system, name, candidate.term.name)))
     return tried, fitted, after
