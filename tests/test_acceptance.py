@@ -116,8 +116,41 @@ def test_each_refusal_is_said_in_words():
 
     assert stop_reason(stopped_at("offset", 0.98)).endswith("it does not lower the test equation error")
     assert stop_reason(stopped_at("offset", float("nan"))).endswith("does not lower the test equation error")
-    assert stop_reason(stopped_at("x^2", 1.3, False)).endswith("the refitted model's test errors do not both fall")
+    assert stop_reason(stopped_at("x^2", 1.3, False)).endswith("the refitted model's test errors do not both fall "
+                                                               "(the simulation's beyond chance)")
     line = stop_reason(stopped_at("coulomb", 2.0, True, 0.45))
     assert line == ("stopped at coulomb (validation ratio 2): halves of the training record keep it on 45 % of "
                     "them (70 % needed)")
     assert stopped_at("x^2", 1.3, False, float("nan"))["inclusion"] is None
+
+
+def _comparison(residual: np.ndarray, fit: float, k_step: float):
+    """A test-record comparison whose free run misses the record by ``residual``."""
+    from cvxid.diagnosis.compare import Comparison
+
+    t = np.arange(residual.size) * 1e-3
+    measured = np.sin(3 * t)
+    return Comparison(t, measured, measured - residual, fit, None, 50, k_step)
+
+
+def test_a_simulation_must_fall_beyond_what_chance_gives_one_parameter():
+    """A sixth outside check, noise 0.1: a quadratic damping was added when the free run's
+    error fell 1.0001 times, the model before already at the noise's ceiling (its error
+    white).  The fall must beat chance_fall, (1 - chi2_{1,0.95} / n_eff)^(-1/2): about
+    1.001 for 3000 white samples, larger for an error whose samples are correlated (few
+    effective samples), 1 when the model before diverged; a real effect's fall (1.33 times,
+    the least of the held-out benchmark's at noise 0.01) passes."""
+    from scipy.stats import chi2
+
+    from cvxid.diagnosis.acceptance import chance_fall
+    from cvxid.diagnosis.refine import _improvement
+
+    rng = np.random.default_rng(0)
+    white = 0.1 * rng.standard_normal(3000)
+    assert chance_fall([white]) == pytest.approx(1 / np.sqrt(1 - chi2.ppf(0.95, 1) / 3000), rel=2e-3)
+    slow = np.convolve(rng.standard_normal(3049), np.ones(50) / 50, mode="valid")
+    assert chance_fall([slow]) > 1.02 > chance_fall([white])
+    assert chance_fall([white, None]) == 1.0 and chance_fall([0.01 * slow[:4]]) == np.inf
+    before = {"x": _comparison(white, 90.5166, 90.60)}
+    assert _improvement(before, {"x": _comparison(white, 90.5178, 90.60)}) < 1  # 1.0001 times: chance
+    assert _improvement(before, {"x": _comparison(white, 100 - 9.4834 / 1.33, 90.60)}) > 1  # 1.33 times

@@ -28,10 +28,12 @@ many halves of the data it did:
 
    must reach :math:`\pi_{\text{thr}} = 0.7` (:data:`ACCEPTANCE`: the halves and threshold of
    the stability selection of :mod:`cvxid.identify.selection`);
-3. **the refitted model is better, and a simulation agrees**: the model refitted with it
-   (a delay profiled again, a library selected again) has a lower test equation error, and
-   its free run (or k-step-ahead prediction; a coupled system: its free run) of the test
-   record a lower error than the model's before.
+3. **the refitted model is better, and a simulation agrees beyond chance**: the model
+   refitted with it (a delay profiled again, a library selected again) has a lower test
+   equation error, and its free run (or k-step-ahead prediction; a coupled system: its free
+   run) of the test record an error lower than the model's before by more than one added
+   parameter lowers it by chance (:func:`chance_fall`, the bound of the diagnosis by
+   simulation error).
 
 No share is set per spec: the rule is the same for every spec, and its constants (20
 halves, 10 blocks, 0.7) are the stability selection's defaults, not tuned for it.  Two
@@ -48,9 +50,11 @@ import warnings
 from typing import Sequence
 
 import numpy as np
+from scipy.stats import chi2
 
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import validation_score
+from cvxid.identify.profile import effective_rows
 from cvxid.identify.problem import constrained_least_squares
 from cvxid.identify.selection import StabilitySettings
 from cvxid.regression.regression import Reduced, Regression
@@ -106,6 +110,30 @@ def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added
     return float(np.mean(keeps))
 
 
+CHANCE = 0.95
+"""The level of :func:`chance_fall`."""
+
+
+def chance_fall(residuals: Sequence[np.ndarray | None]) -> float:
+    r"""The factor by which one added parameter lowers a test record's simulation error by
+    chance alone (level :data:`CHANCE`),
+
+    .. math:: \left(1 - \chi^2_{1,\,0.95} / n_\text{eff}\right)^{-1/2},
+
+    :math:`n_\text{eff}` the effective samples of the model's simulation error on the test
+    record (``residuals``, one per coordinate; :func:`~cvxid.identify.profile.effective_rows`,
+    the fewest over the coordinates); infinite when :math:`n_\text{eff}` is no more than the
+    quantile, 1 when a simulation diverged (None: any fall then counts).  The diagnosis by
+    simulation error's bound.  A sixth outside check, at noise 0.05 and 0.1: a quadratic
+    damping added on a fall of 1.0001 times, the model before already at the noise's
+    ceiling."""
+    if not residuals or any(r is None for r in residuals):
+        return 1.0
+    n = min(effective_rows(r[np.isfinite(r)]) for r in residuals)
+    quantile = chi2.ppf(CHANCE, 1)
+    return float(1.0 / np.sqrt(1.0 - quantile / n)) if n > quantile else np.inf
+
+
 def accepted(probability: float) -> bool:
     """Whether an inclusion probability passes the rule's threshold."""
     return probability >= ACCEPTANCE.threshold - 1e-12
@@ -126,7 +154,7 @@ def stop_reason(stopped: dict) -> str:
     """The condition of the rule the refused candidate failed, in one line."""
     s = stopped
     reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
-              "the refitted model's test errors do not both fall" if not s["errors_fall"] else
+              "the refitted model's test errors do not both fall (the simulation's beyond chance)" if not s["errors_fall"] else
               f"halves of the training record keep it on {100 * s['inclusion']:.0f} % of them "
               f"({100 * ACCEPTANCE.threshold:.0f} % needed)")
     return f"stopped at {s['effect']} (validation ratio {s['validation_ratio']:.4g}): {reason}"

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.acceptance import accepted, inclusion, stop_reason, stopped_at
+from cvxid.diagnosis.acceptance import accepted, chance_fall, inclusion, stop_reason, stopped_at
 from cvxid.diagnosis.candidates import default_candidates, lacks_delay, missing, with_candidate, with_input_delay
 from cvxid.diagnosis.compare import Comparison, compare_system, mean_fit
 from cvxid.diagnosis.ranking import Diagnosis, builders_for, by_fit, diagnose, feedback_builders
@@ -371,18 +371,26 @@ def _selected_anew(system: SystemSpec, tau: float | None, train_rows: SystemBuil
 
 def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> float:
     """The largest factor by which a simulation error of the test record (the mean over
-    coordinates) falls: the free run's from the estimated initial state or from the
-    record's own, or the k-step-ahead prediction's (a diverging simulation has an infinite
-    error).  From the record's own start a heavily damped wrong model forgets the start's
-    error where the right one carries it; on short stretches between gaps the estimated
-    start fits any model."""
+    coordinates) falls, each over the fall that chance gives one added parameter
+    (:func:`~cvxid.diagnosis.acceptance.chance_fall` of the model's own error): the free
+    run's from the estimated initial state or from the record's own, or the k-step-ahead
+    prediction's (a diverging simulation has an infinite error; the prediction's chance is
+    read off the free run's error, whose samples are the more correlated).  From the
+    record's own start a heavily damped wrong model forgets the start's error where the
+    right one carries it; on short stretches between gaps the estimated start fits any
+    model."""
     def error(fit):
         return np.inf if fit is None else max(100.0 - fit, 1e-12)
 
-    pairs = [(mean_fit(old, which), mean_fit(new, which))
-             for which in ("fit_percent", "record_fit_percent", "k_step_fit_percent")]
+    def misses(run):
+        return [None if getattr(c, run) is None else c.measured - getattr(c, run) for c in old.values()]
+
+    free = chance_fall(misses("free_run"))
+    chance = {"fit_percent": free, "record_fit_percent": chance_fall(misses("record_free_run")),
+              "k_step_fit_percent": free}
     with np.errstate(invalid="ignore"):
-        ratios = np.array([error(a) / error(b) for a, b in pairs])
+        ratios = np.array([error(mean_fit(old, which)) / error(mean_fit(new, which)) / chance[which]
+                           for which in chance])
     return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))
 
 
