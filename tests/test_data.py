@@ -104,6 +104,9 @@ def test_a_time_column_in_milliseconds_reads_as_seconds_with_its_velocities():
     np.testing.assert_allclose(e.velocities["x"], np.cos(T), rtol=1e-12)
     with pytest.raises(CvxidError, match="time_unit must be one of s, ms, us, min, h .* got 'msec'"):
         from_frame(frame, time="t", outputs="x", inputs="f", time_unit="msec")
+    jitter = frame.assign(t=np.arange(T.size) * 10.0 + np.random.default_rng(0).uniform(-0.03, 0.03, T.size))
+    with pytest.warns(CvxidWarning, match=r"of the mean step 0.0100\d* s; .*largest time shift [0-9.e-]+ s"):
+        from_frame(jitter, time="t", outputs="x", inputs="f", time_unit="ms")  # said in seconds (a review: in ms)
 
 
 def test_gaps_split_into_segments_and_restart_the_integrals():

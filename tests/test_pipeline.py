@@ -96,14 +96,23 @@ def test_records_from_memory_give_the_spec_runs_numbers(tmp_path):
         assert result.model.coefficients == pytest.approx(reference.model.coefficients, rel=1e-9)
         assert result.model.physical["k1"] == pytest.approx(4.0, rel=0.01)
         assert result.test_mse == pytest.approx(reference.test_mse, rel=1e-9)
+    glitch = frames[0].copy()
+    glitch.loc[1000, "x"] += 5.0  # a DataFrame's sensor check is in the run's warnings, as a file's is
+    assert any("has outliers" in w for w in run(model_only, train=glitch, test=frames[1]).warnings)
     with pytest.raises(CvxidError, match="train must be a cvxid.Experiment or a pandas DataFrame, got ndarray"):
         run(model_only, train=np.zeros((100, 3)))
-    with pytest.raises(CvxidError, match=r"no column named 'x'; available: f, t, x', y.*name its columns as the spec does \(t, x, f, x'\)"):
+    with pytest.raises(CvxidError, match=r"train \(a DataFrame\): no column named 'x'; available: f, t, x', y; "
+                                         r"name its columns as the spec does \(t, x, f, x'\)"):
         run(model_only, train=frames[0].rename(columns={"x": "y"}))
     with pytest.raises(CvxidError, match=r"train has no input 'f' in its inputs \(it has 'u'\)"):
         run(model_only, train=replace(train, inputs={"u": train.inputs["f"]}))
     with pytest.raises(CvxidError, match="test is given without train"):
         run(model_only, test=test)
+    auto = replace(load_problem(model_only, data_required=False), fit=replace(spec.fit, velocity="auto"))
+    plain = [f.drop(columns="x'") for f in frames]  # velocity = "auto" estimates the velocity: no column needed
+    assert auto.with_data(*plain).experiment("train").n == train.n
+    with pytest.raises(CvxidError, match='velocity = "auto" chooses an estimator on a test record: pass test='):
+        auto.with_data(plain[0])
     with pytest.raises(CvxidError, match=r"missing section \[data\].*cvxid.run\(spec, train="):
         run(model_only)
 

@@ -67,11 +67,11 @@ def run(spec, train=None, test=None) -> RunResult:
         raise CvxidError("run: test is given without train; pass train=… too (or neither, and the spec's [data])")
     if isinstance(spec, (str, FilePath)):
         spec = load_problem(spec, data_required=train is None)
-    if train is not None:
-        spec = spec.with_data(train, test)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught, engine(spec.fit.backend, spec.fit.scheduler):
         warnings.simplefilter("always", CvxidWarning)
+        if train is not None:  # (a DataFrame's sensor check warns as a file's does: in result.warnings too)
+            spec = spec.with_data(train, test)
         if spec.fit.velocity == "auto":
             result = _best_velocity(spec)
         else:
@@ -159,8 +159,8 @@ def _longer(spec) -> str:
     delay = spec.delay
     if delay is None or not delay.exact:
         return ""
-    return (f"; or the true delay is longer than the range searched (tau_max = {delay.tau_max:g} s: a delay of half "
-            "a period or more is not in it) — raise [model.delay] tau_max and compare the fits")
+    return (f"; or the true delay is longer than the range searched (tau_max = {delay.tau_max:g} s): raise "
+            "[model.delay] tau_max and compare the fits")
 
 
 def _trading(polish) -> tuple[str, ...]:
@@ -427,9 +427,9 @@ def _warn_drift(out: RunResult) -> None:
         if free >= DRIFT * max(ahead, 1.0):
             where = "" if len(out.comparisons) == 1 else f" of '{label}'"
             warnings.warn(
-                f"the free run{where} drifts away from the test record: fit {c.fit_percent:.1f} % where the noise "
-                f"allows {c.ceiling_percent:.1f} %, while its {c.k_step}-step-ahead prediction fits "
-                f"{c.k_step_fit_percent:.1f} %; each step is right and the simulation is not, so the fit "
+                f"the free run{where} drifts away from the test record: fit {_percent(c.fit_percent)} % where the "
+                f"noise allows {_percent(c.ceiling_percent)} %, while its {c.k_step}-step-ahead prediction fits "
+                f"{_percent(c.k_step_fit_percent)} %; each step is right and the simulation is not, so the fit "
                 "stopped in a basin of the simulation error away from the data (on a long record: identify a "
                 "shorter stretch first, or give the delay a narrower range), or the model lacks part of the "
                 "dynamics, a small force each step that adds up over a free run (an effect the diagnosis did not "
@@ -445,9 +445,9 @@ ratio of the free run's error to the noise's)."""
 
 def _warn_incomplete(out: RunResult) -> None:
     r"""A final model whose free run misses the test record by :data:`INCOMPLETE` times
-    what the noise allows or more (and does not drift: :func:`_warn_drift` says that),
+    what the noise allows or more (and does not drift, which :func:`_warn_drift` says),
     said aloud: part of the dynamics is not in the model and the diagnosis found no
-    candidate that holds it.  An outside check's dead-zone spring (2.2 times), Stribeck and
+    candidate that holds it.  An outside check's dead-zone spring (2.3 times), Stribeck and
     Dahl frictions (2.5 and 3.5 times) and a second, unmodelled input (8.9 times) ended
     with no word between the drift's 10 times and nothing."""
     for label, c in (out.comparisons or {}).items():
@@ -455,19 +455,29 @@ def _warn_incomplete(out: RunResult) -> None:
             continue
         allowed = max(100.0 - c.ceiling_percent, 1e-9)
         free = (100.0 - c.fit_percent) / allowed
-        ahead = (100.0 - c.k_step_fit_percent) / allowed if c.k_step_fit_percent is not None else 1.0
-        if INCOMPLETE <= free < DRIFT * max(ahead, 1.0):
+        drifts = c.k_step_fit_percent is not None and free >= DRIFT * max((100.0 - c.k_step_fit_percent) / allowed, 1)
+        if free >= INCOMPLETE and not drifts:
             where = "" if len(out.comparisons) == 1 else f" of '{label}'"
             tried = ("no candidate the diagnosis tried holds it" if out.spec.diagnose is not None else
                      "[diagnose] looks for it among the catalogue's effects")
             warnings.warn(
                 f"the final model's free run{where} misses the test record by {free:.3g} times what its noise "
-                f"allows (fit {c.fit_percent:.1f} % where the noise allows {c.ceiling_percent:.1f} %): part of the "
-                f"dynamics is not in the model, and {tried}. Effects outside the "
+                f"allows (fit {_percent(c.fit_percent)} % where the noise allows {_percent(c.ceiling_percent)} %): "
+                f"part of the dynamics is not in the model, and {tried}. Effects outside the "
                 "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
                 "an actuator's lag or saturation, a second input), as do a delay outside its search range and a "
-                "noise that is not white (the ceiling assumes white noise); test_fit.png shows where it fails, "
-                "cvxid.residuals(model, test).binned(\"velocity\") against what", CvxidWarning, stacklevel=2)
+                "noise that is not white (the ceiling assumes white noise); test_fit.png shows where it fails, and "
+                "cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") against which state",
+                CvxidWarning, stacklevel=2)
+
+
+def _percent(fit: float) -> str:
+    """A fit (%) with the decimals that tell it from 100 (99.99993 is not "100.0")."""
+    gap = 100.0 - fit
+    if gap <= 0:
+        return f"{fit:g}"
+    decimals = 1 if gap >= 0.1 else min(12, int(np.ceil(-np.log10(max(gap, 1e-12)))) + 1)
+    return f"{fit:.{decimals}f}"
 
 
 QUIET = 90.0

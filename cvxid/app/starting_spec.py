@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS, first_step_back, first_text, missing_rows, seconds_per
+from cvxid.data.experiment import READERS, TIME_UNITS, first_step_back, first_text, missing_rows, seconds_per
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -77,13 +77,19 @@ def _words(name: str) -> list[str]:
 
 UNIT_NAMES = {"ms": ("ms", "msec", "millis", "millisecond", "milliseconds"),
               "us": ("us", "usec", "micros", "microsecond", "microseconds")}
-"""A time column's name words (its bracketed units included) that give its unit."""
+"""A time column's name words that give its unit (its bracketed unit may be any of
+:data:`~cvxid.data.experiment.TIME_UNITS`: ``t [min]``)."""
 
 
 def unit_of(name: str) -> str:
-    """The unit a time column's name gives (``"time_ms"``, ``"t [ms]"``: ``"ms"``), else
-    seconds."""
-    words = re.split(r"[^a-z0-9]+", name.lower())
+    """The unit a time column's name gives: a bracketed one (``"t [ms]"``, ``"time (min)"``,
+    ``"t [µs]"``), else a word of it (``"time_ms"``, ``"timeMs"``, ``"millis"``); seconds
+    when it names none."""
+    plain = re.sub(r"[µμ]s", "us", name)
+    bracketed = re.search(r"[\[(]\s*([A-Za-z]+)\s*[\])]", plain)
+    if bracketed and bracketed.group(1).lower() in TIME_UNITS:
+        return bracketed.group(1).lower()
+    words = re.split(r"[^a-z0-9]+", re.sub(r"([a-z0-9])([A-Z])", r"\1 \2", plain).lower())
     return next((unit for unit, names in UNIT_NAMES.items() if any(w in names for w in words)), "s")
 
 

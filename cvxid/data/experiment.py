@@ -10,7 +10,7 @@ from __future__ import annotations
 import csv
 import re
 import warnings
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Mapping, Sequence
 
@@ -557,14 +557,15 @@ def seconds_per(unit: str) -> float:
     return TIME_UNITS[unit]
 
 
-def in_seconds(experiment: Experiment, unit: str) -> Experiment:
-    """``experiment`` whose time counts ``unit`` (:data:`TIME_UNITS`) with its time in
-    seconds, and its measured velocities (per ``unit``) per second."""
-    scale, t = seconds_per(unit), experiment.time
+def _times(values, scale: float):
+    """``values`` (a time column, or a velocity per time unit when ``scale`` is inverted)
+    times ``scale``; as given when they are not numbers (the Experiment names them)."""
     if scale == 1.0:
-        return experiment
-    return replace(experiment, time=t[0] * scale + (t - t[0]) * scale,  # (steps scaled apart from the start:
-                   velocities={k: v / scale for k, v in experiment.velocities.items()})  # epoch stamps keep them)
+        return values
+    try:
+        return np.asarray(values, dtype=float) * scale
+    except (TypeError, ValueError):
+        return values
 
 
 def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
@@ -595,7 +596,7 @@ def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
 
 def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults,
                 time_unit: str = "s") -> Experiment:
-    seconds_per(time_unit)  # (a wrong unit before the record is read)
+    scale = seconds_per(time_unit)  # (a wrong unit before the record is read)
     named = [("a measured output", outputs), ("an input", inputs), ("a measured velocity", velocities or {})]
     for i, (first, a) in enumerate(named):
         for second, b in named[i + 1:]:
@@ -607,13 +608,12 @@ def _experiment(columns, what, source, time, outputs, inputs, velocities, name, 
         if isinstance(time, str) and time in signals.values():
             raise CvxidError(f"{source}: {what} '{time}' is both the time and {role}; name the signal's own column "
                              "(a spec's [data.*] output, input, velocity; cvxid init lists the file's columns)")
-    t = _pick(columns, time, what, source)
+    t = _times(_pick(columns, time, what, source), scale)  # in seconds (and velocities per second) from here
     signals = ({k: _pick(columns, v, what, source) for k, v in outputs.items()},
                {k: _pick(columns, v, what, source) for k, v in inputs.items()},
-               {k: _pick(columns, v, what, source) for k, v in (velocities or {}).items()})
+               {k: _times(_pick(columns, v, what, source), 1.0 / scale) for k, v in (velocities or {}).items()})
     # the sensor check reads the samples as recorded (resampling a jittered time would
     # smooth a clipped top away): on the sample index first, then on the recorded time
     recorded = checked(Experiment(np.arange(np.size(t), dtype=float), signals[0], signals[1], name=name,
                                   velocities=signals[2], gaps=gaps), faults)
-    return in_seconds(Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2],
-                                 gaps=recorded.gaps), time_unit)
+    return Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2], gaps=recorded.gaps)

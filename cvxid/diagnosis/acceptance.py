@@ -114,23 +114,26 @@ CHANCE = 0.95
 """The level of :func:`chance_fall`."""
 
 
-def chance_fall(residuals: Sequence[np.ndarray | None]) -> float:
-    r"""The factor by which one added parameter lowers a test record's simulation error by
-    chance alone (level :data:`CHANCE`),
+def chance_fall(residuals: Sequence[np.ndarray | None], parameters: int = 1) -> float:
+    r"""The factor by which ``parameters`` added parameters lower a test record's
+    simulation error by chance alone (level :data:`CHANCE`),
 
-    .. math:: \left(1 - \chi^2_{1,\,0.95} / n_\text{eff}\right)^{-1/2},
+    .. math:: \left(1 - \chi^2_{p,\,0.95} / n_\text{eff}\right)^{-1/2},
 
     :math:`n_\text{eff}` the effective samples of the model's simulation error on the test
-    record (``residuals``, one per coordinate; :func:`~cvxid.identify.profile.effective_rows`,
-    the fewest over the coordinates); infinite when :math:`n_\text{eff}` is no more than the
-    quantile, 1 when a simulation diverged (None: any fall then counts).  The diagnosis by
-    simulation error's bound.  A sixth outside check, at noise 0.05 and 0.1: a quadratic
-    damping added on a fall of 1.0001 times, the model before already at the noise's
-    ceiling."""
-    if not residuals or any(r is None for r in residuals):
+    record (``residuals``, one per coordinate; :func:`~cvxid.identify.profile.effective_rows`
+    of its finite samples, the fewest over the coordinates); infinite when
+    :math:`n_\text{eff}` is no more than the quantile (too short or too correlated a
+    record shows no effect), 1 when a simulation diverged (None: any fall then counts) or
+    left no finite sample.  The bound of the diagnosis by simulation error
+    (:mod:`cvxid.diagnosis.simulation`) and of the add-an-effect loop's rule.  A sixth
+    outside check, at noise 0.1: a quadratic damping added on a fall of 1.0001 times, the
+    model before already at the noise's ceiling."""
+    finite = [None if r is None else r[np.isfinite(r)] for r in residuals]
+    if not finite or any(r is None or r.size == 0 for r in finite):
         return 1.0
-    n = min(effective_rows(r[np.isfinite(r)]) for r in residuals)
-    quantile = chi2.ppf(CHANCE, 1)
+    n = min(effective_rows(r) for r in finite)
+    quantile = chi2.ppf(CHANCE, parameters)
     return float(1.0 / np.sqrt(1.0 - quantile / n)) if n > quantile else np.inf
 
 
@@ -154,7 +157,8 @@ def stop_reason(stopped: dict) -> str:
     """The condition of the rule the refused candidate failed, in one line."""
     s = stopped
     reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
-              "the refitted model's test errors do not both fall (the simulation's beyond chance)" if not s["errors_fall"] else
+              "the refitted model's test errors do not both fall (the simulation's beyond chance)"
+              if not s["errors_fall"] else
               f"halves of the training record keep it on {100 * s['inclusion']:.0f} % of them "
               f"({100 * ACCEPTANCE.threshold:.0f} % needed)")
     return f"stopped at {s['effect']} (validation ratio {s['validation_ratio']:.4g}): {reason}"

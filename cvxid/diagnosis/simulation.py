@@ -46,6 +46,7 @@ from scipy.special import gammaln
 from scipy.stats import chi2
 
 from cvxid.data.experiment import Experiment
+from cvxid.diagnosis.acceptance import chance_fall
 from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates, missing, \
     with_candidate, with_input_delay
 from cvxid.diagnosis.compare import compare_system
@@ -223,14 +224,14 @@ def _with_candidate(system: IdentifiedSystem, candidate: Candidate, train: Exper
     return replace(system, models=models)
 
 
-def _holds(system: IdentifiedSystem, effect: str, term: str) -> bool:
-    """Whether ``system`` holds an added ``effect`` (its ``term``): its coefficient in some
-    equation, or the input's delay, is not 0.  One held at its bound of 0 adds nothing,
+def _holds(system: IdentifiedSystem, candidate: Candidate) -> bool:
+    """Whether ``system`` holds an added ``candidate``: its coefficient in an equation it
+    joined, or the input's delay, is not 0.  One held at its bound of 0 adds nothing,
     however the test error moved with the other parameters' further polish (an outside
     check: a Coulomb friction "kept", at exactly 0 in the final model)."""
-    if effect == "input_delay":
+    if candidate.name == "input_delay":
         return any(m.spec.input_tau != 0 for m in system.models.values())
-    return any(m.coefficients.get(term, 0.0) != 0 for m in system.models.values())
+    return any(system.models[label].coefficients.get(candidate.term.name, 0.0) != 0 for label in candidate.equations)
 
 
 def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | None:
@@ -254,7 +255,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     polish's were of the system without the additions); should that polish fit the
     training record worse than the kept fit did, the kept fit is reported, its intervals
     the standard errors' alone."""
-    current, steps, rankings = polished, [], []
+    current, steps, rankings, added = polished, [], [], {}
     before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
     spread = min(np.nanstd(test.output(c)) for c in polished.system.coordinates)  # (each coordinate's, at least)
     precise = bool(before is not None and np.sqrt(np.mean(before**2)) < PRECISION * spread)
@@ -273,7 +274,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
             tried, fitted, after = _try(system, found[best], ranking, current, train, test, before)
             steps.append(tried)
             if tried.kept:
-                kept = fitted
+                kept, added[best] = fitted, found[best]
                 break
         if kept is None:
             break
@@ -298,12 +299,12 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
                 "profile over the delay: a trade between the delay, a free gain and the stiffness is not in them)",
                 CvxidWarning, stacklevel=2)
         current = replace(kept, rms_before=polished.rms_before, seconds=current.seconds + again.seconds)
-        dropped = [s for s in steps if s.kept and not _holds(current.system, s.added, s.term)]
+        dropped = [s for s in steps if s.kept and not _holds(current.system, added[s.added])]
         if dropped:
             warnings.warn(
                 f"the diagnosis by simulation error kept {', '.join(f'{s.added} ({s.term})' for s in dropped)} on the "
                 "test record, and the final polish took its coefficient to 0 (its bound): the final model does not "
-                "hold it", CvxidWarning, stacklevel=2)
+                "hold it (its term stays in the model, at 0)", CvxidWarning, stacklevel=2)
             steps = [replace(s, kept=False) if s in dropped else s for s in steps]
     return SimulationRefinement(current, steps, rankings, precise)
 
@@ -333,9 +334,9 @@ def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, 
     except (SimulationDiverged, CvxidError):
         fitted, after = None, None
     old = float(before @ before)
-    bound = old * (1 - chi2.ppf(0.95, len(_coefficients(candidate))) / effective_rows(before))
+    bound = old / chance_fall([before], len(_coefficients(candidate))) ** 2
     new = float(after @ after) if after is not None and after.size == before.size else np.inf
     tried = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
                            float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),
-                           float(np.sqrt(bound / before.size)), bool(new < bound and _holds(fitted.system, name, candidate.term.name)))
+                           float(np.sqrt(bound / before.size)), bool(new < bound and _holds(fitted.system, candidate)))
     return tried, fitted, after

@@ -168,7 +168,9 @@ class ProblemSpec:
     folder: Path
     system: SystemSpec
     fit: FitSettings
-    data: dict[str, dict]
+    data: dict[str, dict | Experiment]
+    """``[data]``'s tables by record (``train``, ``test``), or the records themselves
+    when Python gave them (:meth:`with_data`)."""
     truth: Truth | None
     description: str = ""
     polynomials: dict[str, tuple[int, bool, tuple[str, ...]]] = field(default_factory=dict)
@@ -249,9 +251,12 @@ class ProblemSpec:
         """
         records = {"train": train} if test is None else {"train": train, "test": test}
         data = {which: self._given(which, record) for which, record in records.items()}
-        if test is None and self.diagnose is not None:
-            raise CvxidError("with_data: the spec's [diagnose] compares the models on a test record: pass test=… "
-                             "(an Experiment or a DataFrame), or remove [diagnose]")
+        needs = [why for why, needed in (("[diagnose] compares the models", self.diagnose is not None),
+                                         ('velocity = "auto" chooses an estimator', self.fit.velocity == "auto"),
+                                         ("[fit] orders chooses an order", bool(self.fit.orders))) if needed]
+        if test is None and needs:
+            raise CvxidError(f"with_data: the spec's {needs[0]} on a test record: pass test=… (an Experiment or a "
+                             "DataFrame)")
         return replace(self, data=data)
 
     def _given(self, which: str, record) -> Experiment:
@@ -259,7 +264,7 @@ class ProblemSpec:
         import pandas as pd
 
         inputs = sorted({s.input_column for s in self.equations.values()})
-        measured = self.fit.velocity not in ESTIMATORS  # "measured", or a column's name
+        measured = self.fit.velocity == "measured" or self.fit.velocity not in VELOCITIES  # (or a column's name)
         if isinstance(record, pd.DataFrame):
             # measured velocities: [fit] velocity's column (one equation), else x' for each coordinate x
             velocities = {self.coordinates[0]: self.fit.velocity} if self.fit.velocity not in VELOCITIES else \
@@ -269,8 +274,11 @@ class ProblemSpec:
                 record = from_frame(record, time="t", outputs=list(self.coordinates), inputs=inputs,
                                     velocities=velocities or None, name=which)
             except CvxidError as exc:
-                raise CvxidError(f"with_data: {which} (a DataFrame) {exc}; name its columns as the spec does "
-                                 f"({', '.join(columns)})") from None
+                said = str(exc).removeprefix("DataFrame: ")
+                fix = (f"name its columns as the spec does ({', '.join(columns)})" if "no column named" in said else
+                       "or read it yourself with cvxid.from_frame(frame, time=…, outputs=…, inputs=…, gaps=…, "
+                       "time_unit=…) and pass the Experiment")
+                raise CvxidError(f"with_data: {which} (a DataFrame): {said}; {fix}") from None
         if not isinstance(record, Experiment):
             raise CvxidError(f"with_data: {which} must be a cvxid.Experiment or a pandas DataFrame, got "
                              f"{type(record).__name__}")
@@ -489,7 +497,7 @@ def data_sections(raw: Table, required: bool = True) -> dict[str, dict]:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
             _string(table, "faults", f"data.{which}", choices=FAULT_HANDLING)
-    if "diagnose" in raw and "test" not in data:
+    if "diagnose" in raw and "test" not in data and required:  # (else with_data checks it)
         raise CvxidError("spec: [diagnose] compares the models on a test record: add [data.test] (another file, or "
                          "the training file with fraction = [0.8, 1] and fraction = [0, 0.8] in [data.train]), or "
                          "remove [diagnose]")
