@@ -178,7 +178,7 @@ def _longer(spec) -> str:
     delay = spec.delay
     if delay is None or not delay.exact:
         return ""
-    return (f"; or the true delay is longer than the range searched (tau_max = {delay.tau_max:g} s): raise "
+    return (f"; if the loop's delay may be longer than the range searched (tau_max = {delay.tau_max:g} s), raise "
             "[model.delay] tau_max and compare the fits")
 
 

@@ -372,7 +372,7 @@ def _selected_anew(system: SystemSpec, tau: float | None, train_rows: SystemBuil
 def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> float:
     """The largest factor by which a simulation error of the test record (the mean over
     coordinates) falls, each over the fall that chance gives one added parameter
-    (:func:`~cvxid.diagnosis.acceptance.chance_fall` of the model's own error): the free
+    (:func:`~cvxid.diagnosis.acceptance.chance_fall` of the new model's error): the free
     run's from the estimated initial state or from the record's own, or the k-step-ahead
     prediction's (a diverging simulation has an infinite error; the prediction's chance is
     read off the free run's error, whose samples are the more correlated).  From the
@@ -382,8 +382,8 @@ def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> floa
     def error(fit):
         return np.inf if fit is None else max(100.0 - fit, 1e-12)
 
-    def misses(run):
-        return [None if getattr(c, run) is None else c.measured - getattr(c, run) for c in old.values()]
+    def misses(run):  # (the model with the effect: chance_fall reads the larger model's error)
+        return [None if getattr(c, run) is None else c.measured - getattr(c, run) for c in new.values()]
 
     free = chance_fall(misses("free_run"))
     chance = {"fit_percent": free, "record_fit_percent": chance_fall(misses("record_free_run")),

@@ -46,7 +46,6 @@ from scipy.special import gammaln
 from scipy.stats import chi2
 
 from cvxid.data.experiment import Experiment
-from cvxid.diagnosis.acceptance import chance_fall
 from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates, missing, \
     with_candidate, with_input_delay
 from cvxid.diagnosis.compare import compare_system
@@ -334,7 +333,7 @@ def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, 
     except (SimulationDiverged, CvxidError):
         fitted, after = None, None
     old = float(before @ before)
-    bound = old / chance_fall([before], len(_coefficients(candidate))) ** 2
+    bound = old * (1 - chi2.ppf(0.95, len(_coefficients(candidate))) / effective_rows(before))
     new = float(after @ after) if after is not None and after.size == before.size else np.inf
     tried = SimulationStep(name, str(ranking.loc[name, "term"]), float(ranking.loc[name, "score"]),
                            float(np.sqrt(old / before.size)), float(np.sqrt(new / before.size)),
