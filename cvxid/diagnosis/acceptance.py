@@ -32,8 +32,8 @@ many halves of the data it did:
    refitted with it (a delay profiled again, a library selected again) has a lower test
    equation error, and its free run (or k-step-ahead prediction; a coupled system: its free
    run) of the test record an error lower than the model's before by more than one added
-   parameter lowers it by chance (:func:`chance_fall`, the bound of the diagnosis by
-   simulation error).
+   parameter lowers it by chance (:func:`chance_fall`, read off the refitted model's
+   error as an F test reads the larger model's).
 
 No share is set per spec: the rule is the same for every spec, and its constants (20
 halves, 10 blocks, 0.7) are the stability selection's defaults, not tuned for it.  Two
