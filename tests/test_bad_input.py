@@ -431,7 +431,7 @@ def _said_of_fits(warn, fit, k_step, ceiling) -> list[str]:
     comparison = Comparison(np.zeros(3), np.zeros(3), np.zeros(3), fit, None, 100, k_step, ceiling_percent=ceiling)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        warn(SimpleNamespace(comparisons={"x": comparison}))
+        warn(SimpleNamespace(comparisons={"x": comparison}, unpolished=None, test=None))
     return [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
 
 
@@ -451,6 +451,28 @@ def test_a_free_run_that_drifts_while_each_step_is_right_is_a_warning(fit, k_ste
         assert "drifts away from the test record: fit 23.3 % where the noise allows 98.7 %" in said[0]
         assert "100-step-ahead prediction fits 98.6 %" in said[0] and "basin of the simulation error" in said[0]
         assert "or the model lacks part of the dynamics" in said[0]
+
+
+@pytest.mark.parametrize("before, after, said", [
+    (90.5, -104.8, True),   # held-out tuning seed 6 (Coulomb, 115 s chirp): 90.5 % before the polish, -105 % after
+    (None, -104.8, False),  # the start's own free run diverged: nothing better to point to
+    (60.0, 23.3, False),    # the start misses by more than half the polished model's error: not astray
+    (70.0, None, True),     # the polished model's free run diverged, the start's did not
+])
+def test_a_drift_says_when_the_model_before_the_polish_fitted_the_test_record_better(before, after, said):
+    """The drift warning of a polish that went astray on a long training record (its free run
+    from the equation-error start far off over 115 s) names the start's own test fit, and how
+    to keep it."""
+    from cvxid.app.run import _astray
+    from cvxid.diagnosis.compare import Comparison
+
+    compared = [Comparison(np.zeros(3), np.zeros(3), np.zeros(3), fit, None, 100, 98.6, ceiling_percent=98.7)
+                for fit in (after, before)]
+    sentence = _astray(*compared)
+    assert bool(sentence) == said, sentence
+    if said:
+        assert f"The equation-error model the output-error polish started from fits it {before:.1f} %" in sentence
+        assert 'keep that model with [fit] refine = "none"' in sentence
 
 
 @pytest.mark.parametrize("fit, k_step, ceiling, warned", [

@@ -65,6 +65,7 @@ class RunResult:
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
     stability: Stability | None = None  # stability selection's inclusion probabilities
     pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error
+    unpolished: IdentifiedSystem | None = None  # the model the output-error polish started from
 
     @property
     def coupled(self) -> bool:
