@@ -741,3 +741,59 @@ def test_results_print_what_they_hold(rng):
     assert "2 of 3 columns" in repr(choice.fit) and re.search(r"a = 0.99\d\d, b = 0.50", repr(choice.fit))
     r = Residuals(T, np.full(T.size, 0.5), np.sin(T), np.cos(T), np.cos(T))
     assert repr(r).startswith("Residuals: the equation error on 500 samples") and "RMS 0.5 " in repr(r)
+
+
+GAPPED = """name = "gapped"
+[data.train]
+file = "train.csv"
+gaps = true
+[data.test]
+file = "test.csv"
+[model.library]
+terms = ["x", "x'", "x^3"]
+[model.delay]
+signal = "x"
+gain = 1.5
+method = "exact"
+tau_max = 0.4
+[fit]
+estimator = "lstsq"
+"""
+
+
+def test_a_gap_near_the_start_neither_shortens_the_windows_nor_hides_a_delay_at_0(tmp_path, rng):
+    """A seventh outside check: x'' + 0.4 x' + 6 x + 2 x^3 = f + 1.5 x(t - 0.15), noise
+    0.001, a gap of 11 samples 1 s into a 4.8 s training record.  The windows were a quarter
+    of the shortest gap-free stretch (0.15 s for 1.1 s without the gap) and the delay came
+    out 0.0010 (its damping 0.62 for 0.4) with no warning, a sample above 0 and above the
+    at-0 tolerance (1e-3 of the range, 0.0004 s).  Now the windows come from the longest
+    stretch, the short one is said to give no rows, and the delay is within 5 %; with the
+    user's 0.15 s windows the delay at one sample is said to be at 0."""
+    import json
+
+    from cvxid.app.cli import main
+    from cvxid.simulate import System, simulate
+
+    system = System(tuple(map(parse_term, ("x'", "x", "x^3"))), np.array([0.4, 6.0, 2.0]), 1.0, "x", gain=1.5,
+                    tau=0.15)
+    for name, seconds, force in (("train", 4.8, lambda s: 3 * np.sin(1.9 * s) + 2 * np.sin(4.7 * s + 1)),
+                                 ("test", 3.0, lambda s: 2 * np.sin(2.6 * s) + 2 * np.sin(5.9 * s + 2))):
+        t = np.arange(int(seconds * 1000)) * 1e-3
+        x, _ = simulate(system, t, force, 0.2, 0.0)
+        x = x + 1e-3 * rng.standard_normal(t.size)
+        if name == "train":
+            x[1000:1011] = np.nan
+        np.savetxt(tmp_path / f"{name}.csv", np.column_stack([t, x, force(t)]), delimiter=",", header="t,x,f",
+                   comments="")
+    said = {}
+    for window in ("auto", 0.15):
+        (tmp_path / "spec.toml").write_text(GAPPED + f"window = {json.dumps(window)}\n")
+        assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / str(window))]) == 0
+        said[window] = json.loads((tmp_path / str(window) / "result.json").read_text())
+    auto = said["auto"]
+    assert auto["window"]["seconds"] > 0.5 and abs(auto["tau"]["estimate"] / 0.15 - 1) < 0.05, auto["tau"]
+    assert any("1 gap-free stretch(es) (train[0:1000]; 21 % of the samples) are shorter than one window" in w
+               for w in auto["warnings"]), auto["warnings"]
+    short = said[0.15]
+    assert short["tau"]["estimate"] < 2e-3, short["tau"]  # (these windows put the delay a sample above 0)
+    assert any("is at 0, the bottom of its search range" in w for w in short["warnings"]), short["warnings"]

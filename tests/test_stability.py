@@ -86,6 +86,12 @@ def test_a_spec_turns_it_off_or_sets_it_and_bad_values_name_the_field(tmp_path):
     path.write_text(text.replace("[fit]\n", "[fit]\nstability = \"yes\"\n"))
     with pytest.raises(CvxidError, match="stability is true, false or a table"):
         load_problem(path)
+    # a seventh outside check: stability asked for beside a bootstrap was dropped without a word
+    path.write_text(text.replace("[fit]\n", "[fit]\nstability = { samples = 10 }\nbootstrap = { samples = 6 }\n"))
+    with pytest.raises(CvxidError, match="stability and bootstrap both select on resampled records.*remove one"):
+        load_problem(path)
+    path.write_text(text.replace("[fit]\n", "[fit]\nbootstrap = { samples = 6 }\n"))  # the default: no stability
+    assert load_problem(path).fit.bootstrap.samples == 6
 
 
 def test_on_a_held_out_system_it_drops_the_spurious_term_the_whole_record_kept(tmp_path):

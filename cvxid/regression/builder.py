@@ -35,7 +35,7 @@ from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, Rest
 from cvxid.regression.memory import check_memory
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import estimate_velocity
-from cvxid.regression.windows import Windows, resolve_window
+from cvxid.regression.windows import Windows, holding, resolve_window
 
 
 ROWS = 2000
@@ -144,6 +144,7 @@ class RegressionBuilder:
         self.start = model.delay.tau_max if exact else 0.0
         self.experiments = usable_segments(exps, 2 * self.start)  # integrals restart after gaps
         self.window = resolve_window(window, model, self.experiments)
+        self.experiments = holding(self.experiments, self.window, model)
         check_memory(sum(e.n for e in self.experiments), len(model.column_names), self.window is not None, allow_large)
         orders = AlgebraicOrders.for_model(model)
         self._states: list[dict[str, np.ndarray]] = []

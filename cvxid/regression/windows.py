@@ -18,7 +18,11 @@ where :math:`\omega_{95}` is the frequency below which 95 % of the output's vari
 twelve random delayed oscillators of the tuning range (equation-error delay and parameters
 with the true terms, noise 0.001 and 0.01; :math:`\kappa` = 0.75–1 tied, 0.5 and 1.5 worse),
 not yet end to end through ``cvxid bench --heldout``.  The window is kept
-between :data:`MIN_SAMPLES` samples and a quarter of the shortest record.
+between :data:`MIN_SAMPLES` samples and a quarter of the longest gap-free stretch (after an
+exact delay's history), and chosen from that stretch's output; a stretch too short to
+hold one window gives no rows (:func:`holding`).  (A quarter of the shortest stretch let a
+gap 1 s into a 4.8 s record cut the windows from 1.1 s to 0.15 s, and the delay fell
+from 0.147 to 0.001 s for 0.15, its damping standing in: a seventh outside check.)
 
 A Taylor delay keeps the whole record by default: its truncation error grows like
 :math:`(\omega\tau)^{r+1}`, and the whole-record operation, whose late rows are windows as
@@ -33,11 +37,12 @@ In a spec: ``[fit] window = "auto"`` (the default), a number of seconds (sliding
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 
 PERIODS = 1.0
@@ -64,24 +69,53 @@ class Windows:
         return f"{self.kind} windows of {self.seconds:.3g} s"
 
 
+def history_seconds(model) -> float:
+    """The seconds at a record's start that an exact delay reads as its measured history
+    (``tau_max``; 0 for any other model)."""
+    return model.delay.tau_max if (model.delay is not None and model.delay.exact) else 0.0
+
+
 def usable_seconds(model, experiments) -> float:
     """The shortest record's seconds after the measured history an exact delay reads."""
-    start = model.delay.tau_max if (model.delay is not None and model.delay.exact) else 0.0
-    return min(e.duration for e in experiments) - start
+    return min(e.duration for e in experiments) - history_seconds(model)
+
+
+def longest(experiments):
+    """The longest of ``experiments`` (the gap-free stretches of the records)."""
+    return max(experiments, key=lambda e: e.duration)
+
+
+def holding(experiments, windows: Windows | None, model) -> list:
+    """The stretches long enough to hold one of ``windows`` after the delay's history,
+    the others left out with a warning that says how much of the record they hold (all of
+    them without windows)."""
+    if windows is None:
+        return list(experiments)
+    start = history_seconds(model)
+    fits = [e.n > 1 and e.duration - start >= windows.seconds * (1 - 1e-9) for e in experiments]
+    kept = [e for e, fit in zip(experiments, fits) if fit]
+    short = [e for e, fit in zip(experiments, fits) if not fit]
+    if short and kept:  # (none holding one: the transform's own error names the window and the samples)
+        share = 100 * sum(e.n for e in short) / sum(e.n for e in experiments)
+        warnings.warn(
+            f"{len(short)} gap-free stretch(es) ({', '.join(e.name for e in short[:3])}{', …' if len(short) > 3 else ''}"
+            f"; {share:.2g} % of the samples) are shorter than one window of the algebraic operation ({windows}) "
+            "after the delay's history and give no rows; a shorter [fit] window keeps them", CvxidWarning,
+            stacklevel=3)
+    return kept or list(experiments)
 
 
 def resolve_window(window, model, experiments) -> Windows | None:
     """The windows (``None``: the whole record) for ``window`` = ``"auto"`` (chosen from
     the first experiment's output), ``"record"``, a number of seconds (sliding windows),
     ``{"restart": seconds}`` / ``{"sliding": seconds}`` or :class:`Windows`."""
-    usable = usable_seconds(model, experiments)
-    dt = experiments[0].dt
+    e = longest(experiments)
+    usable, dt = e.duration - history_seconds(model), e.dt
     if window is None or window == "record":
         return None
     if window == "auto":
         if model.keep_initial_conditions or (model.delay is not None and not model.delay.exact):
             return None  # the paper's Taylor delay: see the module docstring
-        e = experiments[0]
         seconds = PERIODS * 2 * np.pi / band_edge(e.output(model.coordinate), e.dt)
         return Windows(float(max(min(seconds, usable / 4), MIN_SAMPLES * dt)))
     if isinstance(window, str):
@@ -105,6 +139,7 @@ def resolve_window(window, model, experiments) -> Windows | None:
         raise CvxidError(f"[fit] window = {window.seconds:g} s holds fewer than {MIN_SAMPLES} samples "
                          f"(dt = {dt:g} s); lengthen it")
     if window.seconds > usable:
-        raise CvxidError(f"[fit] window = {window.seconds:g} s is longer than the usable record ({usable:g} s "
+        where = "record" if len(experiments) == 1 else "gap-free stretch"
+        raise CvxidError(f"[fit] window = {window.seconds:g} s is longer than the longest usable {where} ({usable:g} s "
                          "after tau_max); shorten it or use window = 'record'")
     return Windows(float(window.seconds), window.kind)

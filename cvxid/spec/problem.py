@@ -757,6 +757,9 @@ def _fit(table: Table, default_estimator: str = "adaptive_lasso") -> FitSettings
         allow_large=_bool(table, "allow_large", where, False),
         prune=_bool(table, "prune", where, True),
     )
+    if "stability" in table and settings.stability is not None and settings.bootstrap is not None:
+        raise CvxidError("spec: [fit] stability and bootstrap both select on resampled records, and with bootstrap "
+                         "its mean is the estimate (stability selection is not run): remove one of them")
     if "prune" in table and settings.prune and (settings.refine is None or estimator not in SELECTING):
         missing, fix = ("refine = \"output_error\"", "add it") if settings.refine is None else (
             f"an estimator that selects (lasso, adaptive_lasso, stlsq), not '{estimator}'", "choose one")
