@@ -4,7 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from cvxid import CvxidError, Path, Problem
+from cvxid import CvxidError, CvxidWarning, Path, Problem
 from cvxid.app.run import run
 from cvxid.identify.bootstrap import Bootstrap, BootstrapSettings, bootstrap
 from cvxid.regression.regression import Regression
@@ -74,6 +74,24 @@ def test_bootstrap_is_reproducible_and_parallel_safe(sparse):
     assert list(summary.columns) == ["mean", "std", "q2.5", "q97.5", "inclusion"]
     np.testing.assert_array_equal(summary["inclusion"].to_numpy() > 0.5, truth != 0)
     np.testing.assert_allclose(summary["mean"].to_numpy(), truth, rtol=0.02, atol=1e-3)
+
+
+def test_the_samples_warnings_reach_the_caller_once_each_with_their_count(sparse):
+    """A seventh outside check: each bootstrap worker printed its own warnings to stderr,
+    raw (8 times the same).  Here a grid far below any term's exit (1e-15 … 1e-14) and a
+    validation error that only falls as terms leave keep every sample's choice at an open
+    top edge: one warning comes back, counting the samples, from worker processes too."""
+    import warnings
+
+    P, p, _, _, _ = sparse
+    reg = Regression(P, p, tuple("abcdef"), ("library",) * 6, np.ones(6))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        bootstrap(reg, lambdas=[1e-15, 1e-14], validate=lambda c: c, show_progress=False,
+                  settings=BootstrapSettings(6, 0.5, seed=7, n_jobs=2))
+    said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
+    assert len(said) == 1 and said[0].startswith("6 of 6 bootstrap samples: the lambda rule chose the top of its "
+                                                 "grid"), said
 
 
 def test_out_of_bag_validation_without_a_test_set(sparse):

@@ -93,3 +93,29 @@ def test_a_block_regression_knows_each_equations_rows_through_column_subsets():
     assert equations(0).subset(["a:u"]).shape == (800, 1)
     single = Regression(np.ones((5, 1)), np.ones(5), ("u",), ("library",), np.ones(1))
     assert single.parts == ()
+
+
+def test_a_candidate_tied_to_a_kept_term_does_not_hold_the_lambda_grid_open():
+    """A seventh outside check: ``x^3`` (a candidate) tied to ``x`` (kept, unpenalised)
+    stays wherever ``x`` is, so the largest lambda still 'kept a candidate': the grid was
+    extended three times (lambda 2.3e8) and the run warned that the selection was not
+    settled.  The tied term is held; the free candidate (truth 0) leaves, nothing warns."""
+    import warnings
+
+    from cvxid.identify.path import select
+
+    rng = np.random.default_rng(0)
+    P = rng.standard_normal((400, 3))
+    truth = np.array([6.0, 0.0, 2.0])
+    p = P @ truth + 0.01 * rng.standard_normal(400)
+    Pt = rng.standard_normal((200, 3))
+    pt = Pt @ truth
+    problem = Problem.from_arrays(P, p, ["x", "x^2", "x^3"], weights=[0.0, 1.0, 1.0], ties=[("x^3", "x", 1 / 3)])
+    np.testing.assert_array_equal(problem.held_by_ties, [False, False, True])
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        path, best = select(problem, np.logspace(-4, 1, 20), lambda c: Pt @ c - pt, rule="1se")
+    assert not [w for w in caught if "not settled" in str(w.message)]
+    assert path.lambdas.max() == 10.0 and path.open_edge("1se") is None
+    np.testing.assert_allclose(best.coefficients[[0, 2]], [6.0, 2.0], rtol=1e-3)
+    assert best.coefficients[1] == 0.0

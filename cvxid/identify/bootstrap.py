@@ -7,11 +7,14 @@ is swept and the selection rule applied.  Delay (and inertia) columns carry no p
 the paper's rule "a dropped delay term is restored and refitted" holds by construction.
 The ensemble mean is the paper's estimate (its eq. 18); the spread, percentile interval and
 inclusion probability of each term come with it.  Samples run in parallel through joblib
-(any joblib backend, e.g. dask or ray, via ``joblib.parallel_config``).
+(any joblib backend, e.g. dask or ray, via ``joblib.parallel_config``); a sample's warnings
+come back with it and are said once each, with the number of samples that gave them.
 """
 
 from __future__ import annotations
 
+import warnings
+from collections import Counter
 from dataclasses import dataclass
 from typing import Callable
 
@@ -100,9 +103,11 @@ def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, esti
         oob = counts == 0
         P, p = regression.P[oob], regression.p[oob]
         validate = lambda c: P @ c - p  # noqa: E731
-    _, fit = select(problem, lambdas, validate, estimator, debias, rule=selection)
+    with warnings.catch_warnings(record=True) as caught:  # (a worker's own would reach its stderr, raw)
+        warnings.simplefilter("always")
+        _, fit = select(problem, lambdas, validate, estimator, debias, rule=selection)
     coefs = np.where(fit.support | (problem.penalties == 0), fit.coefficients, 0.0)
-    return coefs, fit.lam
+    return coefs, fit.lam, list(dict.fromkeys((w.category, str(w.message)) for w in caught))
 
 
 def bootstrap(
@@ -136,6 +141,9 @@ def bootstrap(
         task(regression, counts, *args)
         for counts in progress(draws, desc="bootstrap", disable=not show_progress)
     )
+    for (category, message), count in Counter(w for r in results for w in r[2]).items():
+        warnings.warn(f"{count} of {len(results)} bootstrap samples: {message}",
+                      category, stacklevel=2)
     coefs = pd.DataFrame([r[0] for r in results], columns=list(regression.names))
     coefs.index.name = "sample"
     phys = None

@@ -155,6 +155,20 @@ class Problem:
         return out
 
     # ------------------------------------------------------------------ builders
+    @property
+    def held_by_ties(self) -> np.ndarray:
+        """The columns a chain of ties binds to an unpenalised column: whatever lambda is,
+        the tie keeps them where that column is (their own penalty cannot remove them)."""
+        held = {n for n, w in zip(self.names, self.penalties) if w == 0}
+        grown = True
+        while grown:
+            grown = False
+            for a, b, _ in self.ties:
+                if (a in held) != (b in held):
+                    held |= {a, b}
+                    grown = True
+        return np.array([n in held and w > 0 for n, w in zip(self.names, self.penalties)])
+
     @classmethod
     def from_regression(cls, regression: Regression, nonnegative=(), solver="CLARABEL", row_weights=None, ties=()):
         problem = cls(regression.reduce(row_weights), regression.names, regression.penalties, nonnegative, solver,
