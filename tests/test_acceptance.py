@@ -74,6 +74,23 @@ def test_a_spec_with_the_retired_share_loads_and_says_it_is_unused(tmp_path, spe
     with pytest.warns(CvxidWarning, match=r"\[diagnose\] min_improvement is no longer used.*remove the key"):
         problem = load_problem(old)
     assert problem.diagnose.refine
+    assert len(problem.notes) == 1 and "min_improvement is no longer used" in problem.notes[0]
+
+
+def test_the_retired_share_is_said_by_the_run_in_its_printout_and_result(tmp_path, capsys):
+    """A seventh outside check: the retired key's warning, issued while the spec was read,
+    reached neither a `cvxid run` user's screen nor result.json."""
+    import json
+
+    from cvxid.app.cli import main
+
+    text = (ROOT / "problems" / "hidden_friction.toml").read_text()
+    (tmp_path / "old.toml").write_text(text.replace("[diagnose]\n", "[diagnose]\nmin_improvement = 0.5\n"))
+    assert main(["run", str(tmp_path / "old.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    said = [w for w in json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+            if "min_improvement is no longer used" in w]
+    assert len(said) == 1, said
+    assert capsys.readouterr().out.count("min_improvement is no longer used") == 1
 
 
 @pytest.mark.slow

@@ -66,7 +66,9 @@ def run(spec, train=None, test=None) -> RunResult:
     if train is None and test is not None:
         raise CvxidError("run: test is given without train; pass train=… too (or neither, and the spec's [data])")
     if isinstance(spec, (str, FilePath)):
-        spec = load_problem(spec, data_required=train is None)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CvxidWarning)  # (its notes are said with the run's warnings)
+            spec = load_problem(spec, data_required=train is None)
     start = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught, engine(spec.fit.backend, spec.fit.scheduler):
         warnings.simplefilter("always", CvxidWarning)
@@ -84,8 +86,9 @@ def run(spec, train=None, test=None) -> RunResult:
         _warn_incomplete(result)
         _warn_quiet_test(result)
     polished = (result.tau or {}).get("method") == "output_error"  # its delay supersedes the equation error's
-    said = dict.fromkeys((str(w.message), w.category) for w in caught if issubclass(w.category, CvxidWarning)
-                         and not (polished and issubclass(w.category, EquationErrorDelayWarning)))
+    said = dict.fromkeys([(note, CvxidWarning) for note in spec.notes] + [
+        (str(w.message), w.category) for w in caught if issubclass(w.category, CvxidWarning)
+        and not (polished and issubclass(w.category, EquationErrorDelayWarning))])
     result.warnings = list(dict.fromkeys(message for message, _ in said))
     result.seconds = time.perf_counter() - start
     for message, category in said:  # to a Python caller too, once each in its own category (a notebook shows

@@ -7,10 +7,12 @@ into that form and read by the same checks, so both give the same numbers.
 
 from __future__ import annotations
 
+import warnings
+from dataclasses import replace
 from pathlib import Path
 from typing import Mapping
 
-from cvxid.errors import CvxidError
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.spec.shipped import resolve_spec
 from cvxid.spec.toml import tomllib
 from cvxid.spec.coupled import is_joint, parse_joint_problem
@@ -32,13 +34,20 @@ def load_problem(path, data_required: bool = True) -> ProblemSpec:
 
 def parse_problem(raw: Table, folder: Path, default_name: str = "problem", data_required: bool = True) -> ProblemSpec:
     """The :class:`~cvxid.spec.problem.ProblemSpec` of one equation (``[model]`` or a
-    single ``[[model.equation]]``) or of several."""
-    if not is_joint(raw):
-        return parse_single_problem(raw, folder, default_name, data_required)
-    equations = raw["model"].get("equation")
-    if isinstance(equations, list) and len(equations) == 1:
-        return parse_single_problem(single_equation_form(raw), folder, default_name, data_required)
-    return parse_joint_problem(raw, folder, default_name, data_required)
+    single ``[[model.equation]]``) or of several; what reading it warned of is issued and
+    kept in its ``notes`` (a run repeats it in its warnings)."""
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CvxidWarning)
+        if not is_joint(raw):
+            spec = parse_single_problem(raw, folder, default_name, data_required)
+        elif isinstance(equations := raw["model"].get("equation"), list) and len(equations) == 1:
+            spec = parse_single_problem(single_equation_form(raw), folder, default_name, data_required)
+        else:
+            spec = parse_joint_problem(raw, folder, default_name, data_required)
+    notes = tuple(dict.fromkeys(str(w.message) for w in caught if issubclass(w.category, CvxidWarning)))
+    for w in caught:
+        warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    return replace(spec, notes=notes) if notes else spec
 
 
 def single_equation_form(raw: Table) -> dict:

@@ -176,6 +176,8 @@ class ProblemSpec:
     polynomials: dict[str, tuple[int, bool, tuple[str, ...]]] = field(default_factory=dict)
     """(order, cross, extra) of each equation whose library is an order's polynomial, by coordinate."""
     diagnose: "DiagnoseSettings | None" = None
+    notes: tuple[str, ...] = ()
+    """What reading the spec warned of (a retired key): a run repeats it in its warnings."""
 
     @property
     def model(self) -> ModelSpec:
