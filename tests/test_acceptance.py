@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from cvxid.diagnosis.acceptance import ACCEPTANCE, accepted, inclusion
-from cvxid.errors import CvxidWarning
+from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.selection import StabilitySettings
 from cvxid.regression.regression import Regression
 from cvxid.spec.load import load_problem
@@ -174,3 +174,21 @@ def test_a_simulation_must_fall_beyond_what_chance_gives_one_parameter():
     assert _improvement(before, {"x": _comparison(white, 100 - 9.4834 / 1.33, 90.60)}) > 1  # 1.33 times
     far = {"x": _comparison(5 * slow[:3000], 85.7, 85.7)}  # a poor model's error, few effective samples
     assert _improvement(far, {"x": _comparison(white, 94.7, 94.7)}) > 1  # its repair is not refused
+
+
+def test_a_diagnosis_without_refine_says_it_only_ranks_and_max_steps_asks_for_refine(tmp_path):
+    """A seventh outside check: ``[diagnose]`` without ``refine`` ranked a candidate 69
+    times better, then printed "Refinement: nothing added" with no reason, and its
+    ``max_steps`` did nothing, unsaid."""
+    import re
+
+    from cvxid.app.run import run
+
+    text = re.sub(r"(?m)^refine = true.*\n", "", (ROOT / "problems" / "hidden_friction.toml").read_text())
+    (tmp_path / "rank.toml").write_text(text)
+    result = run(tmp_path / "rank.toml")
+    assert result.refinement.steps == [] and result.diagnosis.top == "coulomb"
+    assert "Refinement: not asked for ([diagnose] refine = false, the default)" in result.summary()
+    (tmp_path / "steps.toml").write_text(text.replace("[diagnose]\n", "[diagnose]\nmax_steps = 2\n"))
+    with pytest.raises(CvxidError, match=r"max_steps limits the effects refine = true adds.*add refine = true"):
+        load_problem(tmp_path / "steps.toml")

@@ -749,6 +749,7 @@ def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilde
         if fit.estimator in SELECTING else None
     out.refinement = refine(out.system, out.train, out.test, settings.candidates, steps, velocity, rows.window,
                             builders=(rows, test_rows), selection=selection)
+    out.refinement.ranking_only = not settings.refine
     system = out.refinement.system
     out.diagnosis = out.refinement.diagnoses[0] if out.refinement.diagnoses else diagnose(
         system, out.train, out.test, settings.candidates, velocity, rows.window, builders=(rows, test_rows))

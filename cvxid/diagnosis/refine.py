@@ -93,6 +93,9 @@ class Refinement:
     builders: tuple | None = None
     """The train and test data's builders of :attr:`system` (with the fed-back delay the
     loop added, when it added one)."""
+    ranking_only: bool = False
+    """No step was asked for (``[diagnose] refine = false``, the default): the loop ranked
+    the effects and added none by design."""
 
     def __post_init__(self):
         self.system = IdentifiedSystem.of(self.system)
@@ -177,6 +180,9 @@ class Refinement:
                                                   f"'{experiment.name}'")
 
     def __repr__(self) -> str:
+        if self.ranking_only:
+            return ("Refinement: not asked for ([diagnose] refine = false, the default): the ranking adds nothing; "
+                    "refine = true adds the best effect while it passes the acceptance rule")
         head = "Refinement" if self.steps else "Refinement: nothing added"
         lines = [head] + ([self.table().to_string(float_format=lambda v: f"{v:.4g}")] if self.steps else [])
         if self.stopped is not None:
