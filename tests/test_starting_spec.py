@@ -80,6 +80,23 @@ def test_a_file_without_time_takes_dt_and_a_clear_error_otherwise(tmp_path, caps
     assert spec.experiment("test").time[0] == pytest.approx(train.time[-1] + 0.001)
 
 
+def test_dt_beside_a_time_column_must_agree_with_it(tmp_path, capsys):
+    """A seventh outside check: ``--dt`` ten times off on a file with a time column
+    ('stamp', found by its steady steps) was taken, and the spec said the file had no time
+    column.  Ten times off is an error naming the column; the right step loads, and says
+    the column agrees."""
+    record = simulated_record()
+    np.savetxt(tmp_path / "rig.csv", np.column_stack([record.time, record.output("x"), record.input("f")]),
+               delimiter=",", header="stamp,pos_a,drive", comments="")
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "a.toml"), "--dt", "0.01"]) == 2
+    assert ("--dt 0.01 s disagrees with the file's time column 'stamp', whose samples are 0.001 s apart: leave out "
+            "--dt to read that column (--time stamp), or correct --dt") in capsys.readouterr().err
+    assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "a.toml"), "--dt", "0.001"]) == 0
+    text = (tmp_path / "a.toml").read_text()
+    assert "the sample step given with --dt, which the column 'stamp' agrees with" in text
+    assert "has no time column" not in text and load_problem(tmp_path / "a.toml").experiment("train").dt == 0.001
+
+
 @pytest.mark.parametrize("keys, message", [
     ('time = "t"\ndt = 0.01', "gives both time and dt"),
     ("fraction = [0.8, 0.2]", r"fraction must be \[start, end\] with 0 <= start < end <= 1"),

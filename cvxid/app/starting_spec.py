@@ -162,11 +162,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
     if given_unit:
         seconds_per(time_unit)  # (a wrong unit before the file is read through)
     if time is None and dt is None:
-        time = _named(numeric, TIME_NAMES)
-        if time is None:
-            steady = [n for n, v in numeric.items() if np.all(np.diff(v) > 0)
-                      and np.ptp(np.diff(v)) <= 0.01 * np.mean(np.diff(v))]
-            time = steady[0] if len(steady) == 1 else None
+        time = _time_column(numeric)
         if time is None:
             raise CvxidError(f"no time column found ({listing}): name it with --time, or give the sample step with "
                              "--dt when the file has none")
@@ -196,6 +192,10 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         said[missing] = "the only other column, a guess: name it with --" + missing + " if wrong"
         output, input = (rest[0], input) if output is None else (output, rest[0])
     reasons.append(f"output '{output}' ({said['output']}); input '{input}' ({said['input']})")
+    stamps = _time_column(numeric) if dt is not None else None
+    if stamps is not None and stamps not in (output, input):
+        _check_step(dt, stamps, numeric[stamps])
+        reasons.append(f"the sample step given with --dt, which the column '{stamps}' agrees with (not read)")
     if len(others) > 2:
         reasons.append(f"not used: {', '.join(n for n in others if n not in (output, input))}")
     samples = numeric[output].size
@@ -243,11 +243,33 @@ def _quoted(text: str) -> str:
     return json.dumps(str(text))
 
 
+def _time_column(numeric: dict) -> str | None:
+    """The file's time column: named as one (:data:`TIME_NAMES`), or the only column that
+    rises in steady steps (within 1 %); None when there is none."""
+    time = _named(numeric, TIME_NAMES)
+    if time is None:
+        steady = [n for n, v in numeric.items() if np.all(np.diff(v) > 0)
+                  and np.ptp(np.diff(v)) <= 0.01 * np.mean(np.diff(v))]
+        time = steady[0] if len(steady) == 1 else None
+    return time
+
+
+def _check_step(dt: float, name: str, stamps: np.ndarray) -> None:
+    """A clear error when ``--dt`` disagrees (by more than 1 %) with the step of the
+    file's own time column ``name`` (read in its unit, :func:`unit_of`): a seventh outside
+    check's ``--dt`` ten times off was taken, the column left out unsaid."""
+    finite = stamps[np.isfinite(stamps)]
+    step = float(np.median(np.diff(finite))) * seconds_per(unit_of(name)) if finite.size > 1 else dt
+    if not abs(step / dt - 1) <= 0.01:
+        raise CvxidError(f"--dt {dt:g} s disagrees with the file's time column '{name}', whose samples are "
+                         f"{step:g} s apart: leave out --dt to read that column (--time {name}), or correct --dt")
+
+
 def _data_table(which: str, file: str, columns: Columns, coordinate: str, force: str,
                 fraction: tuple[float, float] | None) -> str:
     lines = [f"[data.{which}]", f"file = {_quoted(file)}"]
     lines.append(f"time = {_quoted(columns.time)}" if columns.time else f"dt = {columns.dt:g}                       "
-                 "# the file has no time column: samples are this many seconds apart")
+                 "# the sample step in seconds (no time column read)")
     if columns.time_unit != "s":
         lines.append(f'time_unit = "{columns.time_unit}"                # the time column counts {columns.time_unit}: '
                      "cvxid reads it as seconds")
