@@ -496,7 +496,7 @@ def test_a_final_model_that_misses_the_test_record_well_beyond_its_noise_is_said
     from types import SimpleNamespace
 
     said = [s for s in _said_of_fits(lambda out: _warn_incomplete(SimpleNamespace(
-        comparisons=out.comparisons, spec=SimpleNamespace(diagnose=object()))), fit, k_step, ceiling)]
+        comparisons=out.comparisons, spec=SimpleNamespace(diagnose=object()), test=None)), fit, k_step, ceiling)]
     assert bool(said) == warned, said
     if warned and ceiling < 99.9:
         assert f"where the noise allows {ceiling:.1f} %): part of the dynamics is not in the model" in said[0]
@@ -797,3 +797,31 @@ def test_a_gap_near_the_start_neither_shortens_the_windows_nor_hides_a_delay_at_
     short = said[0.15]
     assert short["tau"]["estimate"] < 2e-3, short["tau"]  # (these windows put the delay a sample above 0)
     assert any("is at 0, the bottom of its search range" in w for w in short["warnings"]), short["warnings"]
+
+
+def test_a_measured_velocity_without_its_column_names_both_keys(tmp_path, capsys, rng):
+    """A seventh outside check: ``[fit] velocity = "measured"`` with no velocity column was
+    accepted without a word where no term read it (and an error naming neither key where
+    one did)."""
+    _delayed_record(tmp_path, rng)
+    err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3).replace("[fit]\n", "[fit]\nvelocity = \"measured\"\n"))
+    assert ("[fit] velocity = \"measured\" reads each coordinate's velocity from the records, and [data.train] has "
+            "none of 'x': name its column ([data.train] velocity = \"v\"; from Python, a column x'), or choose an "
+            "estimator ([fit] velocity = \"savgol\")") in err, err
+
+
+@pytest.mark.parametrize("kind, said", [("square", True), ("sine", False)])
+def test_the_gap_warning_names_a_test_input_that_jumps(kind, said):
+    """A seventh outside check: the flexible joint's true model misses its square-wave test
+    record by 3.1 times the noise's error (a jump between two samples happens at a time the
+    record cannot tell) and reaches the noise on a sine; the gap warning named only missing
+    dynamics."""
+    from cvxid import Experiment
+    from cvxid.app.run import _jumping
+
+    t = np.arange(20000) * 1e-3
+    u = 0.81 * (np.sign(np.sin(2 * np.pi * 0.66 * t)) if kind == "square" else np.sin(3.0 * t))
+    text = _jumping(Experiment(t, {"x": np.sin(t)}, {"u": u}))
+    assert bool(text) == said, text
+    if said:
+        assert "an input that jumps ('u' on the test record: a square wave or steps)" in text

@@ -504,3 +504,21 @@ def test_a_truth_that_cannot_be_simulated_names_its_tables():
     raw["truth"]["equation"][0]["delay_gain"] = 30.0  # an unstable loop
     with pytest.raises(CvxidError, match=r"spec: \[data.train.simulate\] the \[truth\] system cannot be simulated"):
         run(parse_problem(raw, ROOT))
+
+
+def test_a_coupled_inertia_at_its_bound_names_the_equations_input_and_a_diverged_polish_says_so(tmp_path):
+    """A seventh outside check: the flexible joint on 20 s with its hidden friction and no
+    diagnosis (the equation error's inertias at 0): the warning advised ``[model] input``,
+    which a coupled spec does not have, and the polish printed ``simulation RMS inf ->
+    1e+06``, result.json ``rms_after`` 1000000.0, the fill of a diverged simulation read as
+    an RMS."""
+    raw = _raw()
+    raw["data"]["train"]["simulate"]["duration"] = 20.0
+    raw["data"]["test"]["simulate"]["duration"] = 10.0
+    raw.pop("diagnose")
+    result = run(parse_problem(raw, SPEC.parent))
+    assert result.physical["J_eq"] < 1e-6  # (the record's equation error: the inertia at its bound)
+    said = [w for w in result.warnings if "at its lower bound" in w]
+    assert said and all("in the [[model.equation]] of '" in w and "[model] input" not in w for w in said), said
+    assert "simulation RMS diverged -> diverged" in result.summary()
+    assert result.to_dict()["polish"]["rms_after"] in (None, float("inf"))

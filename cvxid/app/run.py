@@ -325,8 +325,10 @@ def _warn_implausible(out: RunResult) -> None:
             warnings.warn(
                 f"the identified inertia{where} is {mass:.3g}, at its lower bound (next to 0): its force is under "
                 f"{INERTIA_AT_BOUND:g} of the input's at the record's fastest motion, so a positive inertia does not "
-                f"fit these data. Check the input's sign (a sensor mounted the other way round: [model] input = "
-                f"\"{flipped}\"), that '{spec.input}' is the signal that drives '{spec.coordinate}' (not a "
+                f"fit these data. Check the input's sign (a sensor mounted the other way round: "
+                + (f"[model] input = \"{flipped}\"" if len(out.system.models) == 1 else
+                   f"input = \"{flipped}\" in the [[model.equation]] of '{label}'") +
+                f"), that '{spec.input}' is the signal that drives '{spec.coordinate}' (not a "
                 "command the actuator saturates or lags), and the time column's unit" + _longer(spec), CvxidWarning,
                 stacklevel=2)
     if out.polish is not None:
@@ -532,9 +534,29 @@ def _warn_incomplete(out: RunResult) -> None:
                 f"part of the dynamics is not in the model, and {tried}. Effects outside the "
                 "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
                 "an actuator's lag or saturation, a second input), as do a delay outside its search range and a "
-                "noise that is not white (the ceiling assumes white noise); test_fit.png shows where it fails, and "
-                "cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") against which state",
-                CvxidWarning, stacklevel=2)
+                "noise that is not white (the ceiling assumes white noise)" + _jumping(out.test) + "; test_fit.png "
+                "shows where it fails, and cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") "
+                "against which state", CvxidWarning, stacklevel=2)
+
+
+JUMP = 0.25
+"""An input jumps when one step between consecutive samples spans this share of its range
+(a square wave, steps, a PRBS; a smooth input sampled within its band moves far less)."""
+
+
+def _jumping(test) -> str:
+    """What the gap warning adds when the test record's input jumps: where a jump falls
+    between two samples the record cannot say when, and a true model misses by a few times
+    the noise's error (a seventh outside check: the flexible joint's true model, 3.1 times on
+    its square-wave test, at the noise on a sine)."""
+    for name, u in (test.inputs.items() if test is not None else ()):
+        finite = u[np.isfinite(u)]
+        steps = np.abs(np.diff(finite))
+        if finite.size > 2 and steps.max(initial=0.0) > JUMP * np.ptp(finite) > 0:
+            return (f", and an input that jumps ('{name}' on the test record: a square wave or steps), whose jumps "
+                    "fall between samples at times the record cannot tell (a true model then misses by a few times "
+                    "the noise's error; a smooth test input tells the two apart)")
+    return ""
 
 
 def _percent(fit: float) -> str:
@@ -593,6 +615,20 @@ CV_FOLDS = 5
 """Blocked cross-validation folds that choose lambda when the spec has no test experiment."""
 
 
+def _check_measured_velocity(system: SystemSpec, records: dict) -> None:
+    """A clear error when ``[fit] velocity = "measured"`` finds a record without a
+    coordinate's measured velocity (a seventh outside check: accepted without a word
+    where no term read it, an error naming neither key where one did)."""
+    for which, e in records.items():
+        missing = [s.coordinate for s in system.equations.values() if e is not None and s.coordinate not in e.velocities]
+        if missing:
+            raise CvxidError(
+                f"[fit] velocity = \"measured\" reads each coordinate's velocity from the records, and [data.{which}] "
+                f"has none of {', '.join(repr(c) for c in missing)}: name its column ([data.{which}] velocity = "
+                "\"v\"; from Python, a column " + ", ".join(f"{c}'" for c in missing) + "), or choose an estimator "
+                "([fit] velocity = \"savgol\")")
+
+
 def _identify(spec) -> RunResult:
     fit = spec.fit
     system = spec.system
@@ -608,6 +644,8 @@ def _identify(spec) -> RunResult:
     if test is not None:
         spec.warn_overlap(train, test)
     velocity = fit.velocity if fit.velocity in ESTIMATORS else "measured"
+    if velocity == "measured":
+        _check_measured_velocity(system, {"train": train, "test": test})
     if fit.orders:
         system = spec.at_order(system, max(fit.orders))
     system = _bounded_input_delay(system, train)

@@ -184,8 +184,8 @@ class PolishResult:
     def summary(self) -> str:
         """One line: the simulation error before and after, the time, and whether the
         standard errors depend on the finite-difference step (see :data:`ROUGH`)."""
-        line = (f"output-error polish: simulation RMS {self.rms_before:.4g} -> {self.rms_after:.4g} in "
-                f"{self.seconds:.1f} s")
+        before, after = (f"{v:.4g}" if np.isfinite(v) else "diverged" for v in (self.rms_before, self.rms_after))
+        line = f"output-error polish: simulation RMS {before} -> {after} in {self.seconds:.1f} s"
         if self.jacobian_spread > ROUGH:
             line += (f"; standard errors depend on the finite-difference step (up to {self.jacobian_spread:.2g}x "
                      f"for {self.jacobian_spread_at}): the larger of the two are reported")
@@ -641,7 +641,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     theta = np.where(np.abs(sol.x - lower) <= BOUND_SNAP, lower, np.where(np.abs(sol.x - upper) <= BOUND_SNAP,
                                                                           upper, sol.x))
     r = fun(theta)
-    after = float(np.sqrt(np.mean(r**2)))
+    after = float(np.sqrt(np.mean(r**2))) if not np.any(r == DIVERGED) else float("inf")  # (not the fill's RMS)
     n_eff = effective_rows(r)
     extra = input_noise_covariance(problem, theta, r, jacobian) if input_noise else None
     errors = dict(zip(problem.names, map(float, standard_errors(jacobian, r, n_eff, extra))))

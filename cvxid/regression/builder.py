@@ -187,8 +187,9 @@ class RegressionBuilder:
             if self.velocity == "measured":
                 if coord not in e.velocities:
                     raise CvxidError(
-                        f"velocity = 'measured' but experiment '{e.name}' has no measured "
-                        f"velocity of '{coord}'; name its column or use an estimator"
+                        f"[fit] velocity = \"measured\" but experiment '{e.name}' has no measured velocity of "
+                        f"'{coord}': name its column ([data.*] velocity = \"column\"; from Python, "
+                        f"a column {coord}'), or choose an estimator ([fit] velocity = \"savgol\")"
                     )
                 states[symbol] = e.velocities[coord]
             else:
