@@ -206,10 +206,15 @@ def test_a_chain_of_ties_holds_through_the_output_error_polish():
     spec = parse_problem(raw, ROOT)
     assert spec.system.ties == (("x^3", "x'", 7.5), ("x", "x'", 15.0))
     chained = _replace(spec, system=SystemSpec(spec.system.equations, (("x^3", "x", 0.5), ("x", "x'", 15.0))))
-    for s in (spec, chained):
-        coefficients = run(s).model.coefficients
+    for s in (chained, spec):  # (the spec's last: its result's ties are read below)
+        result = run(s)
+        coefficients = result.model.coefficients
         assert coefficients["x^3"] == pytest.approx(0.5 * coefficients["x"], rel=1e-9)
         assert coefficients["x"] == pytest.approx(15.0 * coefficients["x'"], rel=1e-9)
+    # a seventh outside check: the ties were in model.json only, not the printout or result.json
+    assert "  tie: x^3 = 7.5 x'\n  tie: x = 15 x'\n" in result.summary()
+    assert result.to_dict()["ties"] == [{"left": "x^3", "right": "x'", "factor": 7.5},
+                                        {"left": "x", "right": "x'", "factor": 15.0}]
 
 
 def test_a_one_equation_truth_driven_by_another_input_is_refused():

@@ -226,12 +226,21 @@ class RunResult:
             "equation_latex": model.equation_latex(),
             "regression_equation": model.regression_equation(),
             "support": model.support,
+            "ties": self._ties(),
             "test_nmse": self.test_nmse,
             "lambda": model.lam,
             "selection": fit.selection,
             "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
             "solver": self.problem.solver,
         }
+
+    def _ties(self) -> list[dict]:
+        """The ties the coefficients hold (a chain as a star: every tied column a multiple of
+        the chain's last)."""
+        return [{"left": a, "right": b, "factor": f} for a, b, f in self.system.ties]
+
+    def _tie_lines(self) -> list[str]:
+        return [f"  tie: {a} = {f:g} {b}" for a, b, f in self.system.ties]
 
     def _coupled_dict(self) -> dict:
         system = self.system
@@ -241,7 +250,7 @@ class RunResult:
             "equations": {label: m.equation() for label, m in system.models.items()},
             "equation_latex": {label: m.equation_latex() for label, m in system.models.items()},
             "support": [k for k, v in system.coefficients.items() if v != 0.0],
-            "ties": [{"left": a, "right": b, "factor": f} for a, b, f in system.ties],
+            "ties": self._ties(),
             "lambda": self.lam,
             "solver": self.spec.fit.solver,
             "loss": self.spec.fit.loss,
@@ -264,6 +273,7 @@ class RunResult:
             f"cvxid: {self.spec.name}",
             f"  identified: {self.model.equation()}",
             f"  support ({len(self.model.support)}): {', '.join(self.model.support)}",
+            *self._tie_lines(),
             f"  lambda = {self.model.lam:.3g} ({fit.estimator}, solver {self.problem.solver}, "
             f"velocity {fit.velocity}, {self._windows()})",
             (f"  test MSE = {self.test_mse:.4g}  (relative {self.test_nmse:.3g})" if self.test is not None
@@ -288,7 +298,7 @@ class RunResult:
         system = self.system
         lines = [f"cvxid: {self.spec.name} ({len(system.models)} coupled equations, identified jointly)"]
         lines += [f"  {m.equation()}" for m in system.models.values()]
-        lines += [f"  tie: {a} = {f:g} {b}" for a, b, f in system.ties]
+        lines += self._tie_lines()
         lines.append(f"  algebraic operation: {self._windows()}")
         lines.append(f"  tau = {system.tau:.5g}"
                      + (f" ± {1.96 * self.polish.standard_errors['tau']:.2g} (95 %, output error)" if self.polish else ""))
