@@ -155,11 +155,12 @@ class IdentifiedModel:
     def table(self, truth: dict[str, float] | None = None) -> pd.DataFrame:
         """Physical parameters, beside the truth when it is known: the model's own, and
         those of the truth it set to 0 (the candidates a selection dropped are left out: 12
-        rows of "0 NaN" in 17 of a selected library; :attr:`coefficients` holds them)."""
+        rows of "0 NaN" in 17 of a selected library; :attr:`coefficients` holds them).  A
+        parameter the truth lacks is 0 in it (it was NaN: a seventh outside check)."""
         phys = {k: v for k, v in self.physical.items() if v != 0 or k in (truth or {})}
         frame = pd.DataFrame({"estimate": pd.Series(phys, dtype=float)})
         if truth:
-            frame["truth"] = pd.Series({k: truth.get(k, np.nan) for k in phys})
+            frame["truth"] = pd.Series({k: truth.get(k, 0.0) for k in phys}, dtype=float)
             frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         frame.index.name = "parameter"
         return frame

@@ -825,3 +825,19 @@ def test_the_gap_warning_names_a_test_input_that_jumps(kind, said):
     assert bool(text) == said, text
     if said:
         assert "an input that jumps ('u' on the test record: a square wave or steps)" in text
+
+
+def test_bench_says_when_scikit_learn_is_not_there_to_compare(monkeypatch, capsys):
+    """A seventh outside check: without scikit-learn the bench printed its row as NaN and
+    its differences as None, with no word why."""
+    import cvxid.tools.bench as bench
+
+    figures = {"terms": 26, "rows": 25001, "lambdas": 50, "path_seconds": 0.05, "naive_cvxpy_seconds": 1.0,
+               "naive_lambdas_measured": 5, "naive_failures": 0, "sklearn_seconds": None, "stlsq_seconds": 0.01,
+               "algorithm1_seconds": 9.0, "algorithm1_order": 4, "max_coefficient_difference": 1e-7,
+               "sklearn_max_difference": None, "sklearn_max_objective_gap": None}
+    monkeypatch.setattr(bench, "benchmark", lambda *args: figures)
+    bench.run_bench("hidden_friction")
+    out = capsys.readouterr().out
+    assert "(c) not measured: scikit-learn is not installed (pip install \"cvxid[bench]\" brings it)" in out
+    assert "(a) vs (c)" not in out

@@ -123,3 +123,7 @@ def test_the_table_lists_the_model_s_terms_and_the_truth_s_not_every_dropped_can
     assert list(model.table().index) == ["m", "x", "x'"]
     table = model.table({"m": 1.0, "x": 6.0, "x'": 0.4, "x^3": 2.0})  # a true term the model set to 0: shown
     assert list(table.index) == ["m", "x", "x'", "x^3"] and table.loc["x^3", "error %"] == -100
+    # a seventh outside check: a term the truth lacks read NaN where its true value is 0
+    spurious = IdentifiedModel(spec, {"x''": 1.0, "x": 6.0, "x'": 0.4, "x^2": 0.3, "x^3": 0.0, "x'^3": 0.0})
+    table = spurious.table({"m": 1.0, "x": 6.0, "x'": 0.4})
+    assert table.loc["x^2", "truth"] == 0.0 and np.isnan(table.loc["x^2", "error %"])

@@ -112,7 +112,7 @@ class RunResult:
         else:
             frame = pd.DataFrame({"estimate": self.physical})
             if truth is not None:
-                frame["truth"] = pd.Series(truth).reindex(frame.index)
+                frame["truth"] = pd.Series(truth, dtype=float).reindex(frame.index, fill_value=0.0)
                 frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         if self.polish is not None:
             names = {k: self._physical_name(k) for k in self.polish.parameters}

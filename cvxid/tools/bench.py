@@ -195,9 +195,11 @@ def run_bench(spec_path, order=None, naive_lambdas=5, json_path=None, n_jobs=2) 
     print(table(figures).to_string(float_format=lambda v: f"{v:.4g}"))
     print(f"max relative coefficient difference, (a) vs (b): {figures['max_coefficient_difference']} "
           f"({figures['naive_failures']} of {figures['naive_lambdas_measured']} naive solves failed)")
-    print(f"max relative coefficient difference, (a) vs (c): {figures['sklearn_max_difference']}; "
-          f"largest relative excess of our objective over scikit-learn's: {figures['sklearn_max_objective_gap']}")
-    if figures["sklearn_seconds"]:
+    if figures["sklearn_seconds"] is None:
+        print("(c) not measured: scikit-learn is not installed (pip install \"cvxid[bench]\" brings it)")
+    else:
+        print(f"max relative coefficient difference, (a) vs (c): {figures['sklearn_max_difference']}; "
+              f"largest relative excess of our objective over scikit-learn's: {figures['sklearn_max_objective_gap']}")
         print(f"our path (weights and signs) / scikit-learn's lasso_path (neither): "
               f"{figures['path_seconds'] / figures['sklearn_seconds']:.2f}x")
     print(f"Algorithm 1 chose order {figures['algorithm1_order']}")
