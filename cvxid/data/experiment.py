@@ -234,7 +234,40 @@ class Experiment:
     def segments(self) -> list["Experiment"]:
         """The gap-free runs of the record (itself when it has no NaN samples); runs too
         short to use are dropped."""
-        signals = [*self.outputs.values(), *self.inputs.values(), *self.velocities.values()]
+        return self._runs([*self.outputs.values(), *self.inputs.values(), *self.velocities.values()], "gap-free")
+
+    def driven(self) -> list["Experiment"]:
+        """The runs of the record whose inputs are known, each from and to a sample where
+        every output is measured (itself when its inputs have no NaN samples and its outputs
+        none at its ends): a simulation needs the input, not the measurement, and runs
+        through a gap of the outputs alone (:meth:`filled` for the samples it starts from)."""
+        runs = self._runs(list(self.inputs.values()), "driven")
+        out = []
+        for run in runs:
+            measured = np.all([np.isfinite(y) for y in run.outputs.values()], axis=0)
+            first, last = np.argmax(measured), run.n - np.argmax(measured[::-1])
+            if last - first >= MIN_SAMPLES and measured.any():
+                out.append(run if (first, last) == (0, run.n) else run.slice(int(first), int(last),
+                                                                             f"{run.name}[{first}:{last}]"))
+        if not out:
+            raise CvxidError(f"experiment '{self.name}': no run of {MIN_SAMPLES} samples or more with its inputs known")
+        return out
+
+    def filled(self) -> "Experiment":
+        """This record with each output's missing samples drawn straight across the gap
+        (linear interpolation): the states a simulation starts from and its measured history
+        read it; a fit compares the measured samples alone."""
+        if all(np.isfinite(y).all() for y in self.outputs.values()):
+            return self
+        outputs = {}
+        for name, y in self.outputs.items():
+            known = np.isfinite(y)
+            outputs[name] = np.interp(self.time, self.time[known], y[known]) if not known.all() else y
+        return Experiment(self.time, outputs, self.inputs, self.name, self.velocities, gaps=self.gaps)
+
+    def _runs(self, signals: list[np.ndarray], kind: str) -> list["Experiment"]:
+        """The runs of the record where none of ``signals`` is NaN, at least
+        :data:`MIN_SAMPLES` long (itself when none is)."""
         missing = np.zeros(self.n, bool)
         for v in signals:
             missing |= np.isnan(v)
@@ -243,7 +276,7 @@ class Experiment:
         edges = np.flatnonzero(np.diff(np.r_[1, missing.astype(int), 1]))
         runs = [(a, b) for a, b in zip(edges[::2], edges[1::2]) if b - a >= MIN_SAMPLES]
         if not runs:
-            raise CvxidError(f"experiment '{self.name}': no gap-free run of {MIN_SAMPLES} samples or more")
+            raise CvxidError(f"experiment '{self.name}': no {kind} run of {MIN_SAMPLES} samples or more")
         return [self.slice(int(a), int(b), f"{self.name}[{a}:{b}]") for a, b in runs]
 
     def __repr__(self) -> str:

@@ -103,13 +103,14 @@ class _Block:
         self.delayed: dict[tuple[float, int], np.ndarray] = {}
 
 
-def usable_segments(experiments: list[Experiment], shortest: float) -> list[Experiment]:
-    """The gap-free stretches of the records; with gaps, stretches shorter than
+def usable_segments(experiments: list[Experiment], shortest: float, runs=Experiment.segments) -> list[Experiment]:
+    """The gap-free stretches of the records (``runs``: the stretches of one, by default
+    :meth:`~cvxid.data.experiment.Experiment.segments`); with gaps, stretches shorter than
     ``shortest`` seconds (twice ``tau_max``: the delayed signal's history and as many rows)
     are left out with a warning, unless none would remain."""
     out, dropped = [], []
     for e in experiments:
-        segments = e.segments()
+        segments = runs(e)
         if len(segments) == 1:
             out += segments
             continue
@@ -119,7 +120,7 @@ def usable_segments(experiments: list[Experiment], shortest: float) -> list[Expe
     if dropped and out:
         warnings.warn(f"{len(dropped)} gap-free stretch(es) shorter than {shortest:g} s left out ({', '.join(dropped[:3])}"
                       f"{', …' if len(dropped) > 3 else ''})", CvxidWarning, stacklevel=3)
-    return out or [s for e in experiments for s in e.segments()]
+    return out or [s for e in experiments for s in runs(e)]
 
 
 class RegressionBuilder:

@@ -139,7 +139,7 @@ def resolve_window(window, model, experiments) -> Windows | None:
         raise CvxidError(f"[fit] window = {window.seconds:g} s holds fewer than {MIN_SAMPLES} samples "
                          f"(dt = {dt:g} s); lengthen it")
     if window.seconds > usable:
-        where = "record" if len(experiments) == 1 else "gap-free stretch"
-        raise CvxidError(f"[fit] window = {window.seconds:g} s is longer than the longest usable {where} ({usable:g} s "
+        where = "the usable record" if len(experiments) == 1 else "the longest usable gap-free stretch"
+        raise CvxidError(f"[fit] window = {window.seconds:g} s is longer than {where} ({usable:g} s "
                          "after tau_max); shorten it or use window = 'record'")
     return Windows(float(window.seconds), window.kind)
