@@ -792,7 +792,7 @@ def test_a_gap_near_the_start_neither_shortens_the_windows_nor_hides_a_delay_at_
         said[window] = json.loads((tmp_path / str(window) / "result.json").read_text())
     auto = said["auto"]
     assert auto["window"]["seconds"] > 0.5 and abs(auto["tau"]["estimate"] / 0.15 - 1) < 0.05, auto["tau"]
-    assert any("1 gap-free stretch(es) (train[0:1000]; 21 % of the samples) are shorter than one window" in w
+    assert any("1 record(s) or gap-free stretch(es) (train[0:1000]; 21 % of the samples) are shorter than one window" in w
                for w in auto["warnings"]), auto["warnings"]
     short = said[0.15]
     assert short["tau"]["estimate"] < 2e-3, short["tau"]  # (these windows put the delay a sample above 0)
@@ -810,7 +810,7 @@ def test_a_measured_velocity_without_its_column_names_both_keys(tmp_path, capsys
             "estimator ([fit] velocity = \"savgol\")") in err, err
 
 
-@pytest.mark.parametrize("kind, said", [("square", True), ("sine", False)])
+@pytest.mark.parametrize("kind, said", [("square", True), ("prbs", True), ("sine", False), ("white", False)])
 def test_the_gap_warning_names_a_test_input_that_jumps(kind, said):
     """A seventh outside check: the flexible joint's true model misses its square-wave test
     record by 3.1 times the noise's error (a jump between two samples happens at a time the
@@ -820,7 +820,11 @@ def test_the_gap_warning_names_a_test_input_that_jumps(kind, said):
     from cvxid.app.run import _jumping
 
     t = np.arange(20000) * 1e-3
-    u = 0.81 * (np.sign(np.sin(2 * np.pi * 0.66 * t)) if kind == "square" else np.sin(3.0 * t))
+    rng = np.random.default_rng(0)
+    u = {"square": lambda: 0.81 * np.sign(np.sin(2 * np.pi * 0.66 * t)),
+         "prbs": lambda: np.repeat(rng.choice([-1.0, 1.0], 200), 100),
+         "sine": lambda: np.sin(3.0 * t),
+         "white": lambda: rng.standard_normal(t.size)}[kind]()  # (broadband excitation: no jumps between stills)
     text = _jumping(Experiment(t, {"x": np.sin(t)}, {"u": u}))
     assert bool(text) == said, text
     if said:

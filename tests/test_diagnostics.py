@@ -361,8 +361,9 @@ def test_the_fed_back_delay_is_searched_in_the_records_time_or_left_out_with_a_w
     # check: a short first stretch had cut every window) a late input ranks just above it (ratios 1.038 and
     # 1.027) and the rule refuses that; either way the loop ends by the rule
     ranking = result.diagnoses[0].ranking
-    assert "delay" in ranking.index and ranking.loc["delay", "validation_ratio"] > 1.0, ranking
-    assert result.steps or result.stopped is not None
+    assert set(ranking.index[:2]) == {"input_delay", "delay"}, ranking
+    assert ranking.loc["delay", "validation_ratio"] > 1.0, ranking
+    assert (result.steps[0].added if result.steps else result.stopped["effect"]) == ranking.index[0]
 
 
 @pytest.mark.slow

@@ -89,12 +89,19 @@ def test_dt_beside_a_time_column_must_agree_with_it(tmp_path, capsys):
     np.savetxt(tmp_path / "rig.csv", np.column_stack([record.time, record.output("x"), record.input("f")]),
                delimiter=",", header="stamp,pos_a,drive", comments="")
     assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "a.toml"), "--dt", "0.01"]) == 2
-    assert ("--dt 0.01 s disagrees with the file's time column 'stamp', whose samples are 0.001 s apart: leave out "
-            "--dt to read that column (--time stamp), or correct --dt") in capsys.readouterr().err
+    assert ("--dt 0.01 s disagrees with the file's time column 'stamp', whose samples are 0.001 (of its unit) "
+            "apart: leave out --dt to read that column (--time stamp, with --time-unit if it does not count "
+            "seconds), or correct --dt") in capsys.readouterr().err
     assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "a.toml"), "--dt", "0.001"]) == 0
     text = (tmp_path / "a.toml").read_text()
     assert "the sample step given with --dt, which the column 'stamp' agrees with" in text
     assert "has no time column" not in text and load_problem(tmp_path / "a.toml").experiment("train").dt == 0.001
+    # a column counting ms, or rounded stamps that repeat (the case --dt is for), is no disagreement
+    for name, stamps in (("stamp", 1000 * record.time), ("time", np.round(record.time, 1))):
+        np.savetxt(tmp_path / "rig.csv", np.column_stack([stamps, record.output("x"), record.input("f")]),
+                   delimiter=",", header=f"{name},pos_a,drive", comments="")
+        assert main(["init", str(tmp_path / "rig.csv"), "-o", str(tmp_path / "b.toml"), "--dt", "0.001",
+                     "--force"]) == 0
 
 
 @pytest.mark.parametrize("keys, message", [

@@ -29,7 +29,8 @@ def _run(args) -> int:
     if args.out:
         prepare_folder(args.out)  # an unusable --out fails before any work
     spec = _with_engine(args.spec, args.backend, args.scheduler)
-    if not isinstance(spec, ProblemSpec):  # (parsed here: the spec's own warnings, a retired key, are shown)
+    if not isinstance(spec, ProblemSpec):  # (parsed before any work: a bad spec fails at once; its notes, a
+        #                                      retired key, are said with the run's warnings)
         spec = load_problem(spec)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CvxidWarning)  # (run() issues result.warnings: the summary prints them)

@@ -46,7 +46,7 @@ from cvxid.model.symbols import velocity_symbol
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import engine
 from cvxid.progress import progress
-from cvxid.regression.builder import SystemBuilder
+from cvxid.regression.builder import SystemBuilder, no_measured_velocity
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
 from cvxid.regression.windows import history_seconds, longest
@@ -131,7 +131,7 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
                 f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
                 f"separately; {determined}. Give the gain ([model.delay] gain = …), or remove [model.delay] if the "
-                "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay) and _short_of_noise(out, spec)
+                "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay, out.train.dt) and _short_of_noise(out, spec)
                                        else "") + note,
                 CvxidWarning, stacklevel=2)
         elif out.polish is not None and _trading(out.polish):
@@ -150,15 +150,22 @@ def _warn_confounded_gain(out: RunResult) -> None:
 TOP = 1e-3
 """A delay within this share of its search range's width (or :data:`EDGE_SAMPLES` samples,
 if that is more) from an end of its range is at that end."""
-EDGE_SAMPLES = 2
+EDGE_SAMPLES = 1.5
 """The samples from an end of its range within which a delay is at that end (a seventh
 outside check's 0.0010002 s at 1 kHz, a range of 0.4 s, its damping standing in for the
-delay, was not said to be at 0: the equation-error profile's grid is about a sample)."""
+delay, was not said to be at 0: the equation-error profile's grid is about a sample; a
+delay of two samples, a digital loop's, is not at 0)."""
 
 
-def _at_top(tau: float | None, delay) -> bool:
-    """Whether the delay ``tau`` is at the top of ``delay``'s search range (:data:`TOP`)."""
-    return tau is not None and tau >= delay.tau_max - TOP * (delay.tau_max - delay.tau_min)
+def _edge(delay, dt: float) -> float:
+    """How close to an end of ``delay``'s search range a delay is at that end: :data:`TOP`
+    of the range's width, or :data:`EDGE_SAMPLES` samples of ``dt`` if that is more."""
+    return max(TOP * (delay.tau_max - delay.tau_min), EDGE_SAMPLES * dt)
+
+
+def _at_top(tau: float | None, delay, dt: float) -> bool:
+    """Whether the delay ``tau`` is at the top of ``delay``'s search range (:func:`_edge`)."""
+    return tau is not None and tau >= delay.tau_max - _edge(delay, dt)
 
 
 SHORT_OF_NOISE = 1.5
@@ -222,14 +229,13 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     delay = spec.delay
     if estimate is None or delay is None or not delay.exact:
         return
-    # (the polish's bounds hold the estimate on them; the equation-error profile's grid is about a sample)
-    tolerance = max(TOP * (delay.tau_max - delay.tau_min), EDGE_SAMPLES * out.train.dt)
+    tolerance = _edge(delay, out.train.dt)  # (the polish's bounds hold the estimate on them)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
     text = None
-    top = _at_top(estimate, delay) or (  # (or its interval reaches the top, and is not the whole range)
+    top = _at_top(estimate, delay, out.train.dt) or (  # (or its interval reaches the top, and is not the whole range)
         interval is not None and interval[1] >= delay.tau_max - tolerance and not _spans_range(interval, delay))
     if top and said and (gain is None or gain[0] <= 0 <= gain[1]):
         pass  # (the gain's warning says why the delay may lie anywhere in its range; a gain that is determined
@@ -336,7 +342,7 @@ def _warn_implausible(out: RunResult) -> None:
         _warn_negative_damping(out)
     if out.path is None or out.lam is None or out.problem is None:
         return
-    candidates = out.problem.penalties > 0
+    candidates = (out.problem.penalties > 0) & ~out.problem.held_by_ties  # (a tie keeps those: Path.open_edge)
     chosen = np.array([out.system.coefficients.get(n, 0.0) != 0 for n in out.problem.names])
     if candidates.sum() > 2 and (chosen | ~candidates).all() and out.lam <= out.path.lambdas.min():
         warnings.warn(
@@ -484,7 +490,7 @@ def _astray(c, start) -> str:
     comparison ``start``) fits the test record's free run better by :data:`ASTRAY` or more
     (a long record's simulation error, far from its start, has basins away from the data: a
     held-out tuning system of 115 s, 90.5 % before the polish, -105 % after)."""
-    if start is None or start.fit_percent is None:
+    if start is None or start.fit_percent is None or not start.fit_percent > 0:
         return ""
     if c.fit_percent is not None and ASTRAY * (100.0 - start.fit_percent) > 100.0 - c.fit_percent:
         return ""
@@ -541,7 +547,11 @@ def _warn_incomplete(out: RunResult) -> None:
 
 JUMP = 0.25
 """An input jumps when one step between consecutive samples spans this share of its range
-(a square wave, steps, a PRBS; a smooth input sampled within its band moves far less)."""
+while most steps are tiny (under :data:`STILL` of it): a square wave, steps, a PRBS; a
+smooth input sampled within its band, and broadband noise, are not."""
+STILL = 0.01
+"""The median step between consecutive samples, as a share of the range, under which an
+input holds still between its jumps (:data:`JUMP`)."""
 
 
 def _jumping(test) -> str:
@@ -550,9 +560,9 @@ def _jumping(test) -> str:
     the noise's error (a seventh outside check: the flexible joint's true model, 3.1 times on
     its square-wave test, at the noise on a sine)."""
     for name, u in (test.inputs.items() if test is not None else ()):
-        finite = u[np.isfinite(u)]
-        steps = np.abs(np.diff(finite))
-        if finite.size > 2 and steps.max(initial=0.0) > JUMP * np.ptp(finite) > 0:
+        steps = np.abs(np.diff(u))
+        steps, span = steps[np.isfinite(steps)], np.nanmax(u) - np.nanmin(u)  # (no step across a gap)
+        if steps.size > 2 and steps.max() > JUMP * span > 0 and np.median(steps) < STILL * span:
             return (f", and an input that jumps ('{name}' on the test record: a square wave or steps), whose jumps "
                     "fall between samples at times the record cannot tell (a true model then misses by a few times "
                     "the noise's error; a smooth test input tells the two apart)")
@@ -622,11 +632,7 @@ def _check_measured_velocity(system: SystemSpec, records: dict) -> None:
     for which, e in records.items():
         missing = [s.coordinate for s in system.equations.values() if e is not None and s.coordinate not in e.velocities]
         if missing:
-            raise CvxidError(
-                f"[fit] velocity = \"measured\" reads each coordinate's velocity from the records, and [data.{which}] "
-                f"has none of {', '.join(repr(c) for c in missing)}: name its column ([data.{which}] velocity = "
-                "\"v\"; from Python, a column " + ", ".join(f"{c}'" for c in missing) + "), or choose an estimator "
-                "([fit] velocity = \"savgol\")")
+            raise CvxidError(no_measured_velocity(f"[data.{which}]", which, missing))
 
 
 def _identify(spec) -> RunResult:

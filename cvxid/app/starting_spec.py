@@ -193,8 +193,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         output, input = (rest[0], input) if output is None else (output, rest[0])
     reasons.append(f"output '{output}' ({said['output']}); input '{input}' ({said['input']})")
     stamps = _time_column(numeric) if dt is not None else None
-    if stamps is not None and stamps not in (output, input):
-        _check_step(dt, stamps, numeric[stamps])
+    if stamps is not None and stamps not in (output, input) and _check_step(dt, stamps, numeric[stamps]):
         reasons.append(f"the sample step given with --dt, which the column '{stamps}' agrees with (not read)")
     if len(others) > 2:
         reasons.append(f"not used: {', '.join(n for n in others if n not in (output, input))}")
@@ -254,15 +253,23 @@ def _time_column(numeric: dict) -> str | None:
     return time
 
 
-def _check_step(dt: float, name: str, stamps: np.ndarray) -> None:
-    """A clear error when ``--dt`` disagrees (by more than 1 %) with the step of the
-    file's own time column ``name`` (read in its unit, :func:`unit_of`): a seventh outside
-    check's ``--dt`` ten times off was taken, the column left out unsaid."""
+def _check_step(dt: float, name: str, stamps: np.ndarray) -> bool:
+    """Whether the file's own time column ``name`` agrees with ``--dt`` (within 1 %, in
+    seconds or in another unit of :data:`~cvxid.data.experiment.TIME_UNITS`: a column in
+    ms), a clear error when it rises in steady steps that do not (a seventh outside check's
+    ``--dt`` ten times off was taken, the column left out unsaid); False, and nothing
+    checked, when its stamps do not rise in steps (rounded epoch seconds repeat: ``--dt`` is
+    then the way in)."""
     finite = stamps[np.isfinite(stamps)]
-    step = float(np.median(np.diff(finite))) * seconds_per(unit_of(name)) if finite.size > 1 else dt
-    if not abs(step / dt - 1) <= 0.01:
-        raise CvxidError(f"--dt {dt:g} s disagrees with the file's time column '{name}', whose samples are "
-                         f"{step:g} s apart: leave out --dt to read that column (--time {name}), or correct --dt")
+    steps = np.diff(finite)
+    if finite.size < 2 or not np.all(steps > 0):
+        return False
+    step = float(np.median(steps))
+    if any(abs(step * seconds / dt - 1) <= 0.01 for seconds in TIME_UNITS.values()):
+        return True
+    raise CvxidError(f"--dt {dt:g} s disagrees with the file's time column '{name}', whose samples are {step:g} "
+                     f"(of its unit) apart: leave out --dt to read that column (--time {name}, with --time-unit "
+                     "if it does not count seconds), or correct --dt")
 
 
 def _data_table(which: str, file: str, columns: Columns, coordinate: str, force: str,

@@ -241,7 +241,7 @@ class Experiment:
         every output is measured (itself when its inputs have no NaN samples and its outputs
         none at its ends): a simulation needs the input, not the measurement, and runs
         through a gap of the outputs alone (:meth:`filled` for the samples it starts from)."""
-        runs = self._runs(list(self.inputs.values()), "driven")
+        runs = self._runs(list(self.inputs.values()), "input-complete")
         out = []
         for run in runs:
             measured = np.all([np.isfinite(y) for y in run.outputs.values()], axis=0)
@@ -250,7 +250,8 @@ class Experiment:
                 out.append(run if (first, last) == (0, run.n) else run.slice(int(first), int(last),
                                                                              f"{run.name}[{first}:{last}]"))
         if not out:
-            raise CvxidError(f"experiment '{self.name}': no run of {MIN_SAMPLES} samples or more with its inputs known")
+            raise CvxidError(f"experiment '{self.name}': no run of {MIN_SAMPLES} samples or more with its inputs known "
+                             "and its outputs measured at both ends")
         return out
 
     def filled(self) -> "Experiment":

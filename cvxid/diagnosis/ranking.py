@@ -43,7 +43,7 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
-from cvxid.regression.windows import Windows, resolve_window, usable_seconds
+from cvxid.regression.windows import Windows, fitting_every, resolve_window, usable_seconds
 
 COLLINEAR = 0.9
 """Candidates whose orthogonalised contributions correlate above this form one group."""
@@ -132,7 +132,7 @@ def feedback_builders(specs: dict[str, ModelSpec], train: Experiment, test: Expe
     model = next(iter(fed.values()))
     seconds = window.seconds if isinstance(window, Windows) else window
     if window == "auto" or isinstance(seconds, (int, float)) and seconds > usable_seconds(model, records):
-        window = resolve_window("auto", model, records)  # windows that fit every record after the delay's history
+        window = fitting_every(resolve_window("auto", model, train.segments()), model, records)  # (every record's)
     return builders_for(fed, train, test, velocity, window)
 
 

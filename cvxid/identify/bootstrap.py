@@ -13,6 +13,7 @@ come back with it and are said once each, with the number of samples that gave t
 
 from __future__ import annotations
 
+import os
 import warnings
 from collections import Counter
 from dataclasses import dataclass
@@ -97,17 +98,30 @@ class Bootstrap:
         )
 
 
-def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection, ties):
+def _one_sample(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection, ties,
+                caller):
+    """One resampled path's selection; in a worker process (not the ``caller``'s) its
+    warnings recorded and returned (there they would reach the worker's stderr, raw; in the
+    caller's own process, a thread of it included, they are issued as they come:
+    recording them is not thread-safe)."""
+    if os.getpid() == caller:
+        return _selected(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection,
+                         ties) + ([],)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        coefs, lam = _selected(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias,
+                               selection, ties)
+    return coefs, lam, list(dict.fromkeys((w.category, str(w.message)) for w in caught))
+
+
+def _selected(regression, counts, nonnegative, solver, lambdas, validate, estimator, debias, selection, ties):
     problem = Problem.from_regression(regression, nonnegative, solver, row_weights=counts, ties=ties)
     if validate is None:  # out-of-bag rows validate (neighbouring rows are correlated: optimistic)
         oob = counts == 0
         P, p = regression.P[oob], regression.p[oob]
         validate = lambda c: P @ c - p  # noqa: E731
-    with warnings.catch_warnings(record=True) as caught:  # (a worker's own would reach its stderr, raw)
-        warnings.simplefilter("always")
-        _, fit = select(problem, lambdas, validate, estimator, debias, rule=selection)
-    coefs = np.where(fit.support | (problem.penalties == 0), fit.coefficients, 0.0)
-    return coefs, fit.lam, list(dict.fromkeys((w.category, str(w.message)) for w in caught))
+    _, fit = select(problem, lambdas, validate, estimator, debias, rule=selection)
+    return np.where(fit.support | (problem.penalties == 0), fit.coefficients, 0.0), fit.lam
 
 
 def bootstrap(
@@ -134,7 +148,7 @@ def bootstrap(
     size = max(int(round(settings.fraction * n)), regression.shape[1] + 1)
     draws = [rng.multinomial(size, np.full(n, 1.0 / n)) for _ in range(int(settings.samples))]
     task = delayed(_one_sample)
-    args = (tuple(nonnegative), solver, lambdas, validate, estimator, debias, selection, tuple(ties))
+    args = (tuple(nonnegative), solver, lambdas, validate, estimator, debias, selection, tuple(ties), os.getpid())
     # joblib's default (loky) backend limits each worker's BLAS threads to its share of
     # the cores; a user's joblib.parallel_config (dask, ray, …) applies here as well
     results = Parallel(n_jobs=settings.n_jobs)(

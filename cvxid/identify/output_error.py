@@ -63,6 +63,7 @@ from cvxid.progress import progress
 from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.regression.builder import usable_segments
+from cvxid.regression.windows import history_seconds
 from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integrate, substeps_for
 
 JACOBIAN_STEP = 1e-5
@@ -253,8 +254,7 @@ def _shortest(system: IdentifiedSystem) -> float:
     """The shortest gap-free stretch a polish uses: twice ``tau_max`` with an exact delay
     (its measured history and as long again), else any (:class:`_Problem` still asks for
     20 simulated samples)."""
-    delay = next(iter(system.specs.values())).delay
-    return 2 * delay.tau_max if delay is not None and delay.exact else 0.0
+    return 2 * history_seconds(next(iter(system.specs.values())))
 
 
 @one_blas_thread

@@ -35,7 +35,7 @@ from cvxid.regression.algebraic import AlgebraicOrders, AlgebraicTransform, Rest
 from cvxid.regression.memory import check_memory
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import estimate_velocity
-from cvxid.regression.windows import Windows, holding, resolve_window
+from cvxid.regression.windows import Windows, history_seconds, holding, resolve_window
 
 
 ROWS = 2000
@@ -103,6 +103,15 @@ class _Block:
         self.delayed: dict[tuple[float, int], np.ndarray] = {}
 
 
+def no_measured_velocity(record: str, table: str, coordinates) -> str:
+    """The error of ``[fit] velocity = "measured"`` on a record (``table``: its ``[data.*]``
+    table's name) without these coordinates' measured velocities: both keys that fix it."""
+    return (f"[fit] velocity = \"measured\" reads each coordinate's velocity from the records, and {record} has none "
+            f"of {', '.join(repr(c) for c in coordinates)}: name its column ([data.{table}] velocity = \"v\"; from "
+            "Python, a column " + ", ".join(f"{c}'" for c in coordinates) + "), or choose an estimator ([fit] "
+            "velocity = \"savgol\")")
+
+
 def usable_segments(experiments: list[Experiment], shortest: float, runs=Experiment.segments) -> list[Experiment]:
     """The gap-free stretches of the records (``runs``: the stretches of one, by default
     :meth:`~cvxid.data.experiment.Experiment.segments`); with gaps, stretches shorter than
@@ -118,7 +127,7 @@ def usable_segments(experiments: list[Experiment], shortest: float, runs=Experim
         dropped += [s.name for s in segments if s.duration < shortest]
         out += keep
     if dropped and out:
-        warnings.warn(f"{len(dropped)} gap-free stretch(es) shorter than {shortest:g} s left out ({', '.join(dropped[:3])}"
+        warnings.warn(f"{len(dropped)} stretch(es) between gaps shorter than {shortest:g} s left out ({', '.join(dropped[:3])}"
                       f"{', …' if len(dropped) > 3 else ''})", CvxidWarning, stacklevel=3)
     return out or [s for e in experiments for s in runs(e)]
 
@@ -142,7 +151,7 @@ class RegressionBuilder:
             raise CvxidError(f"the records must be an Experiment or a list of them (cvxid.Experiment(t, {{\"x\": x}}, "
                              f"{{\"f\": f}}), cvxid.from_frame(...)), got {type(experiments).__name__}")
         exact = model.delay is not None and model.delay.exact
-        self.start = model.delay.tau_max if exact else 0.0
+        self.start = history_seconds(model)
         self.experiments = usable_segments(exps, 2 * self.start)  # integrals restart after gaps
         self.window = resolve_window(window, model, self.experiments)
         self.experiments = holding(self.experiments, self.window, model)
@@ -187,11 +196,7 @@ class RegressionBuilder:
                 raise CvxidError(f"no signal '{symbol}' in experiment '{e.name}'")
             if self.velocity == "measured":
                 if coord not in e.velocities:
-                    raise CvxidError(
-                        f"[fit] velocity = \"measured\" but experiment '{e.name}' has no measured velocity of "
-                        f"'{coord}': name its column ([data.*] velocity = \"column\"; from Python, "
-                        f"a column {coord}'), or choose an estimator ([fit] velocity = \"savgol\")"
-                    )
+                    raise CvxidError(no_measured_velocity(f"experiment '{e.name}'", "*", [coord]))
                 states[symbol] = e.velocities[coord]
             else:
                 states[symbol] = estimate_velocity(states[coord], e.time, self.velocity)

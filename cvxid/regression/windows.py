@@ -75,14 +75,23 @@ def history_seconds(model) -> float:
     return model.delay.tau_max if (model.delay is not None and model.delay.exact) else 0.0
 
 
-def usable_seconds(model, experiments) -> float:
-    """The shortest record's seconds after the measured history an exact delay reads."""
-    return min(e.duration for e in experiments) - history_seconds(model)
-
-
 def longest(experiments):
     """The longest of ``experiments`` (the gap-free stretches of the records)."""
     return max(experiments, key=lambda e: e.duration)
+
+
+def usable_seconds(model, records) -> float:
+    """The seconds after the delay's history that every one of ``records`` (whole records,
+    gaps and all) holds in its longest gap-free stretch."""
+    return min(longest(r.segments()).duration for r in records) - history_seconds(model)
+
+
+def fitting_every(windows: Windows, model, records) -> Windows:
+    """``windows`` shortened, where needed, to a quarter of :func:`usable_seconds`: windows
+    that every record holds (a delay candidate's, shared by the training and the test
+    record, whose automatic windows come from the training record's longest stretch)."""
+    usable = usable_seconds(model, records)
+    return Windows(float(min(windows.seconds, max(usable / 4, MIN_SAMPLES * records[0].dt))), windows.kind)
 
 
 def holding(experiments, windows: Windows | None, model) -> list:
@@ -98,7 +107,8 @@ def holding(experiments, windows: Windows | None, model) -> list:
     if short and kept:  # (none holding one: the transform's own error names the window and the samples)
         share = 100 * sum(e.n for e in short) / sum(e.n for e in experiments)
         warnings.warn(
-            f"{len(short)} gap-free stretch(es) ({', '.join(e.name for e in short[:3])}{', …' if len(short) > 3 else ''}"
+            f"{len(short)} record(s) or gap-free stretch(es) ({', '.join(e.name for e in short[:3])}"
+            f"{', …' if len(short) > 3 else ''}"
             f"; {share:.2g} % of the samples) are shorter than one window of the algebraic operation ({windows}) "
             "after the delay's history and give no rows; a shorter [fit] window keeps them", CvxidWarning,
             stacklevel=3)
@@ -107,7 +117,8 @@ def holding(experiments, windows: Windows | None, model) -> list:
 
 def resolve_window(window, model, experiments) -> Windows | None:
     """The windows (``None``: the whole record) for ``window`` = ``"auto"`` (chosen from
-    the first experiment's output), ``"record"``, a number of seconds (sliding windows),
+    the output of the longest of ``experiments``, the records' gap-free stretches, and at
+    most a quarter of its seconds after the delay's history), ``"record"``, a number of seconds (sliding windows),
     ``{"restart": seconds}`` / ``{"sliding": seconds}`` or :class:`Windows`."""
     e = longest(experiments)
     usable, dt = e.duration - history_seconds(model), e.dt

@@ -550,7 +550,7 @@ def diagnose_settings(raw: Table, equations: dict[str, ModelSpec]) -> DiagnoseSe
     """``[diagnose]`` of a system of these equations (their declared effects set)."""
     d = _table(raw, "diagnose", "", {"candidates", "refine", "min_improvement", "max_steps", "effects", "simulation"})
     retired_min_improvement(d)
-    if "max_steps" in d and not d.get("refine", False):
+    if "max_steps" in d and not _bool(d, "refine", "diagnose", False):
         raise CvxidError("spec: [diagnose] max_steps limits the effects refine = true adds, and refine is false (the "
                          "default: the effects are ranked, none added); add refine = true, or remove max_steps")
     candidates = None
