@@ -131,7 +131,7 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
                 f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
                 f"separately; {determined}. Give the gain ([model.delay] gain = …), or remove [model.delay] if the "
-                "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay, out.train.dt) and _short_of_noise(out, spec)
+                "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay) and _short_of_noise(out, spec)
                                        else "") + note,
                 CvxidWarning, stacklevel=2)
         elif out.polish is not None and _trading(out.polish):
@@ -148,8 +148,8 @@ def _warn_confounded_gain(out: RunResult) -> None:
 
 
 TOP = 1e-3
-"""A delay within this share of its search range's width (or :data:`EDGE_SAMPLES` samples,
-if that is more) from an end of its range is at that end."""
+"""A delay within this share of its search range's width from an end of its range is at
+that end (at the bottom, :data:`EDGE_SAMPLES` samples if that is more: :func:`_edge`)."""
 EDGE_SAMPLES = 1.5
 """The samples from an end of its range within which a delay is at that end (a seventh
 outside check's 0.0010002 s at 1 kHz, a range of 0.4 s, its damping standing in for the
@@ -158,14 +158,16 @@ delay of two samples, a digital loop's, is not at 0)."""
 
 
 def _edge(delay, dt: float) -> float:
-    """How close to an end of ``delay``'s search range a delay is at that end: :data:`TOP`
-    of the range's width, or :data:`EDGE_SAMPLES` samples of ``dt`` if that is more."""
+    """How close to the bottom of ``delay``'s search range a delay is at it: :data:`TOP` of
+    the range's width, or :data:`EDGE_SAMPLES` samples of ``dt`` if that is more (at the
+    top :data:`TOP` alone: a flat profile's estimate a sample under the top is said to be
+    undetermined, its interval spanning the range, not to lie beyond it)."""
     return max(TOP * (delay.tau_max - delay.tau_min), EDGE_SAMPLES * dt)
 
 
-def _at_top(tau: float | None, delay, dt: float) -> bool:
-    """Whether the delay ``tau`` is at the top of ``delay``'s search range (:func:`_edge`)."""
-    return tau is not None and tau >= delay.tau_max - _edge(delay, dt)
+def _at_top(tau: float | None, delay) -> bool:
+    """Whether the delay ``tau`` is at the top of ``delay``'s search range (:data:`TOP`)."""
+    return tau is not None and tau >= delay.tau_max - TOP * (delay.tau_max - delay.tau_min)
 
 
 SHORT_OF_NOISE = 1.5
@@ -229,13 +231,14 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     delay = spec.delay
     if estimate is None or delay is None or not delay.exact:
         return
-    tolerance = _edge(delay, out.train.dt)  # (the polish's bounds hold the estimate on them)
+    tolerance = TOP * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
+    bottom = _edge(delay, out.train.dt)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
     text = None
-    top = _at_top(estimate, delay, out.train.dt) or (  # (or its interval reaches the top, and is not the whole range)
+    top = _at_top(estimate, delay) or (  # (or its interval reaches the top, and is not the whole range)
         interval is not None and interval[1] >= delay.tau_max - tolerance and not _spans_range(interval, delay))
     if top and said and (gain is None or gain[0] <= 0 <= gain[1]):
         pass  # (the gain's warning says why the delay may lie anywhere in its range; a gain that is determined
@@ -251,11 +254,11 @@ def _warn_delay_at_bound(out: RunResult) -> None:
                                                   if interval else "") +
             f" reaches the top of its search range (tau_max = {delay.tau_max:g} s): the true delay may be longer; "
             "raise [model.delay] tau_max" + _stand_ins(out))
-    elif estimate <= delay.tau_min + tolerance and delay.tau_min > 0:
+    elif estimate <= delay.tau_min + bottom and delay.tau_min > 0:
         text = (
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min")
-    elif estimate <= tolerance and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
+    elif estimate <= bottom and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
         text = (
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
