@@ -866,6 +866,7 @@ class _Problem:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         self.measured = [np.column_stack([m[c][k::self.stride] for c in self.coordinates])
                          for m, k in zip(measured, self.starts)]  # (samples, coordinates) compared
+        self.measured = [None if seen.all() else seen for seen in self.measured]  # (None: every one)
         coefficients = system.coefficients
         periods = [band_period([e.output(c)[k:] for c in self.coordinates], e.dt)
                    for e, k in zip(experiments, self.starts)]
@@ -1010,9 +1011,9 @@ class _Problem:
                 X, _ = integrate(
                     t, self._forces(i, t, values, B), self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
-                out.append((X - Y[:, :, None])[seen])
+                out.append((X - Y[:, :, None]).reshape(-1, B) if seen is None else (X - Y[:, :, None])[seen])
             except SimulationDiverged:
-                out.append(np.full((int(seen.sum()), B), DIVERGED))
+                out.append(np.full((Y.size if seen is None else int(seen.sum()), B), DIVERGED))
         return np.vstack(out)
 
     def _forces(self, i: int, t: np.ndarray, values: dict, B: int):
