@@ -413,3 +413,16 @@ def test_a_simulation_error_falls_when_any_of_the_three_falls(old, new, falls):
         return {"x": Comparison(np.zeros(3), np.zeros(3), None, fit, None, 100, ahead, record_fit_percent=record)}
 
     assert (_improvement(comparison(old), comparison(new)) > 1) == falls
+
+
+def test_a_test_record_shorter_than_the_training_windows_takes_its_own():
+    """A stranger's review: ``refine`` called from Python with a 0.8 s test record and the
+    training record's automatic windows of 2 s ended in "[fit] window = 2 s is longer than
+    the usable record", a key the caller never set; the run chose the test record's own
+    windows, and now so does the diagnosis."""
+    train, test = experiments(None)
+    short = test.slice(0, 800, "short")
+    result = refine(without_delay(train), train, short)
+    train_rows, test_rows = result.builders
+    assert test_rows.window.seconds < train_rows.window.seconds <= 2.0
+    assert test_rows.window.seconds <= 0.8 / 4 + 1e-9

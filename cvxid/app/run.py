@@ -49,7 +49,7 @@ from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder, no_measured_velocity
 from cvxid.regression.regression import Regression
 from cvxid.regression.velocity import ESTIMATORS
-from cvxid.regression.windows import history_seconds, longest
+from cvxid.regression.windows import windows_for_test
 from cvxid.spec.load import load_problem
 from cvxid.spec.problem import ProblemSpec
 
@@ -615,15 +615,6 @@ def _best_velocity(spec) -> RunResult:
     return best
 
 
-def _test_window(asked, train_window, system, test):
-    """The test record's windows: the training record's, unless they were chosen
-    automatically and no gap-free stretch of the test record holds one (then its own)."""
-    too_long = train_window is not None and any(
-        train_window.seconds > longest(test.segments()).duration - history_seconds(spec)
-        for spec in system.equations.values())
-    return "auto" if asked == "auto" and too_long else train_window
-
-
 CV_FOLDS = 5
 """Blocked cross-validation folds that choose lambda when the spec has no test experiment."""
 
@@ -660,7 +651,8 @@ def _identify(spec) -> RunResult:
     system = _bounded_input_delay(system, train)
     _check_input_delay(system, [train] + ([test] if test else []))
     rows = SystemBuilder(system.equations, train, velocity, fit.window, fit.allow_large)
-    test_rows = SystemBuilder(system.equations, test, velocity, _test_window(fit.window, rows.window, system, test),
+    test_rows = SystemBuilder(system.equations, test, velocity,
+                              windows_for_test(fit.window, rows.window, system.equations.values(), test),
                               fit.allow_large) if test else None
     whole = fit_support(system, rows, solver=fit.solver) if system.exact else None
     input_profile = None
@@ -932,7 +924,8 @@ def order_search(spec: ProblemSpec, orders=range(1, 7), samples: int | None = No
         train = train if train is not None else rows.at(tau)
         if test is None:
             record = spec.experiment("test")
-            test = SystemBuilder(top.equations, record, velocity, _test_window(fit.window, rows.window, top, record),
+            test = SystemBuilder(top.equations, record, velocity,
+                                 windows_for_test(fit.window, rows.window, top.equations.values(), record),
                                  fit.allow_large).at(tau)
     if boot is None and samples:
         boot = BootstrapSettings(samples, fraction, seed, n_jobs)

@@ -43,7 +43,7 @@ from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.progress import progress
 from cvxid.regression.builder import SystemBuilder
-from cvxid.regression.windows import Windows, fitting_every, resolve_window, usable_seconds
+from cvxid.regression.windows import Windows, fitting_every, resolve_window, usable_seconds, windows_for_test
 
 COLLINEAR = 0.9
 """Candidates whose orthogonalised contributions correlate above this form one group."""
@@ -116,8 +116,8 @@ def builders_for(specs: dict[str, ModelSpec], train: Experiment, test: Experimen
     train_rows, test_rows = (None if b is None else SystemBuilder.of(b) for b in (given or (None, None)))
     if train_rows is None:
         train_rows = SystemBuilder(specs, train, velocity, window)
-    if test_rows is None and test is not None:
-        test_rows = SystemBuilder(specs, test, velocity, train_rows.window)
+    if test_rows is None and test is not None:  # (a test record too short for automatic windows: its own)
+        test_rows = SystemBuilder(specs, test, velocity, windows_for_test(window, train_rows.window, specs.values(), test))
     return train_rows, test_rows
 
 

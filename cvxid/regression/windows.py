@@ -80,6 +80,15 @@ def longest(experiments):
     return max(experiments, key=lambda e: e.duration)
 
 
+def windows_for_test(asked, train_windows: Windows | None, models, test):
+    """A test record's windows: the training record's (``train_windows``), unless they were
+    chosen automatically (``asked`` is ``"auto"``) and no gap-free stretch of ``test``
+    holds one after a delay's history of ``models`` (then ``"auto"``: its own)."""
+    too_long = train_windows is not None and any(
+        train_windows.seconds > longest(test.segments()).duration - history_seconds(m) for m in models)
+    return "auto" if asked == "auto" and too_long else train_windows
+
+
 def usable_seconds(model, records) -> float:
     """The seconds after the delay's history that every one of ``records`` (whole records,
     gaps and all) holds in its longest gap-free stretch."""
