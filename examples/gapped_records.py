@@ -42,20 +42,15 @@ MISSING = 20
 
 def one(seed: int, effect: str, where: str) -> dict:
     oscillator = draw(seed, effect, 0.01, 8.0)
+
+    def dropouts(which, rows):  # (x missing: a record with NaN is written with gaps = true)
+        for share in GAPS[where] if which == "train" else ():
+            start = int(share * len(rows))
+            rows[start:start + MISSING, 1] = np.nan
+
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
         warnings.simplefilter("ignore")
-        spec = write(oscillator, scratch, known_gain=True)
-        if GAPS[where]:
-            path = os.path.join(scratch, "train.csv")
-            rows = np.loadtxt(path, delimiter=",", skiprows=1)
-            for share in GAPS[where]:
-                start = int(share * len(rows))
-                rows[start:start + MISSING, 1] = np.nan
-            np.savetxt(path, rows, fmt="%.10g", delimiter=",", header="t,x,f", comments="")
-            text = open(spec).read().replace('[data.train]\nfile = "train.csv"', '[data.train]\nfile = "train.csv"\ngaps = true')
-            assert "gaps = true" in text
-            open(spec, "w").write(text)
-        result = run(spec).to_dict()
+        result = run(write(oscillator, scratch, known_gain=True, change=dropouts)).to_dict()
     low, high = result["tau"]["interval"]
     return {"seed": seed, "effect": effect, "gaps": where,
             "tau error %": 100 * (result["tau"]["estimate"] - oscillator.tau) / oscillator.tau,

@@ -40,18 +40,15 @@ SHARES = (0.0, 0.005, 0.01, 0.02, 0.04)
 
 def one(seed: int, effect: str, share: float) -> dict:
     oscillator = draw(seed, effect, 0.002, 8.0)
+    step = share * np.sqrt(12) * np.std(oscillator.experiment("train").output("x"))
+
+    def rounded(which, rows):
+        if step > 0:
+            rows[:, 1] = np.round(rows[:, 1] / step) * step
+
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
         warnings.simplefilter("ignore")
-        spec = write(oscillator, scratch, known_gain=True)
-        step = share * np.sqrt(12) * np.std(np.loadtxt(os.path.join(scratch, "train.csv"), delimiter=",",
-                                                       skiprows=1)[:, 1])
-        for which in ("train", "test"):
-            path = os.path.join(scratch, f"{which}.csv")
-            rows = np.loadtxt(path, delimiter=",", skiprows=1)
-            if step > 0:
-                rows[:, 1] = np.round(rows[:, 1] / step) * step
-            np.savetxt(path, rows, fmt="%.10g", delimiter=",", header="t,x,f", comments="")
-        result = run(spec).to_dict()
+        result = run(write(oscillator, scratch, known_gain=True, change=rounded)).to_dict()
     low, high = result["tau"]["interval"]
     return {"seed": seed, "effect": effect, "rounding share %": 100 * share,
             "test fit %": result["test_fit_percent"], "noise allows %": result["test_fit_percent_noise_ceiling"],

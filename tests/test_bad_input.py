@@ -15,6 +15,7 @@ from cvxid.regression.builder import RegressionBuilder
 from cvxid.regression.regression import Regression
 
 from .conftest import cli_error
+from .test_sensor import SPEC as SENSOR_SPEC
 
 T = np.arange(500) * 0.01
 MODEL = ModelSpec(Library([parse_term("x"), parse_term("x'")]))
@@ -743,22 +744,10 @@ def test_results_print_what_they_hold(rng):
     assert repr(r).startswith("Residuals: the equation error on 500 samples") and "RMS 0.5 " in repr(r)
 
 
-GAPPED = """name = "gapped"
-[data.train]
-file = "train.csv"
-gaps = true
-[data.test]
-file = "test.csv"
-[model.library]
-terms = ["x", "x'", "x^3"]
-[model.delay]
-signal = "x"
-gain = 1.5
-method = "exact"
-tau_max = 0.4
-[fit]
-estimator = "lstsq"
-"""
+GAPPED = SENSOR_SPEC.replace('"x" = 6.0 }}', '"x" = 6.0, "x^3" = 2.0 }}').format(
+    train='file = "train.csv"\ngaps = true', test='[data.test]\nfile = "test.csv"').replace(
+    'terms = ["x", "x\'"]', 'terms = ["x", "x\'", "x^3"]')
+"""The sensor tests' spec with a cubic stiffness, its training record loaded with gaps."""
 
 
 def test_a_gap_near_the_start_neither_shortens_the_windows_nor_hides_a_delay_at_0(tmp_path, rng):

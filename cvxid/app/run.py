@@ -149,20 +149,14 @@ def _warn_confounded_gain(out: RunResult) -> None:
 
 TOP = 1e-3
 """A delay within this share of its search range's width from an end of its range is at
-that end (at the bottom, :data:`EDGE_SAMPLES` samples if that is more: :func:`_edge`)."""
+that end (at the bottom, :data:`EDGE_SAMPLES` samples if that is more)."""
 EDGE_SAMPLES = 1.5
-"""The samples from an end of its range within which a delay is at that end (a seventh
-outside check's 0.0010002 s at 1 kHz, a range of 0.4 s, its damping standing in for the
-delay, was not said to be at 0: the equation-error profile's grid is about a sample; a
-delay of two samples, a digital loop's, is not at 0)."""
-
-
-def _edge(delay, dt: float) -> float:
-    """How close to the bottom of ``delay``'s search range a delay is at it: :data:`TOP` of
-    the range's width, or :data:`EDGE_SAMPLES` samples of ``dt`` if that is more (at the
-    top :data:`TOP` alone: a flat profile's estimate a sample under the top is said to be
-    undetermined, its interval spanning the range, not to lie beyond it)."""
-    return max(TOP * (delay.tau_max - delay.tau_min), EDGE_SAMPLES * dt)
+"""The samples from the bottom of its range within which a delay is at the bottom, where
+that is more than :data:`TOP` of the range (a seventh outside check's 0.0010002 s at
+1 kHz, a range of 0.4 s, its damping standing in for the delay, was not said to be at 0:
+the equation-error profile's grid is about a sample; a delay of two samples, a digital
+loop's, is not at 0).  At the top :data:`TOP` alone: a flat profile's estimate a sample
+under the top is undetermined, its interval spanning the range, not beyond it."""
 
 
 def _at_top(tau: float | None, delay) -> bool:
@@ -232,7 +226,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     if estimate is None or delay is None or not delay.exact:
         return
     tolerance = TOP * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
-    bottom = _edge(delay, out.train.dt)
+    bottom = max(tolerance, EDGE_SAMPLES * out.train.dt)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
@@ -554,7 +548,9 @@ while most steps are tiny (under :data:`STILL` of it): a square wave, steps, a P
 smooth input sampled within its band, and broadband noise, are not."""
 STILL = 0.01
 """The median step between consecutive samples, as a share of the range, under which an
-input holds still between its jumps (:data:`JUMP`)."""
+input holds still between its jumps (:data:`JUMP`).  The test inputs of 100 held-out
+tuning systems (multisines and chirps, noise 0.01 on the input) never read as jumping; a
+square wave does while its input noise (standard deviation) stays under about 1 % of its range."""
 
 
 def _jumping(test) -> str:

@@ -29,6 +29,7 @@ from cvxid.initial_state import check_initial_state, free_run
 from cvxid.metrics import band_period, fit_percent, noise_ceiling_percent
 from cvxid.regression.history import start_index
 from cvxid.regression.velocity import savgol_window
+from cvxid.regression.windows import longest
 from cvxid.simulate import SimulationDiverged, integrate
 
 
@@ -122,8 +123,8 @@ def longest_stretch(experiment: Experiment) -> tuple[Experiment, str]:
     segments = experiment.segments()
     if len(segments) == 1 and segments[0] is experiment:
         return experiment, ""
-    longest = max(segments, key=lambda s: s.n)
-    return longest, f"compared on the longest gap-free stretch, {longest.name} ({longest.n} of {experiment.n} samples)"
+    stretch = longest(segments)
+    return stretch, f"compared on the longest gap-free stretch, {stretch.name} ({stretch.n} of {experiment.n} samples)"
 
 
 K_STEP_PERIODS = 0.05

@@ -864,9 +864,8 @@ class _Problem:
         for e, k in zip(experiments, self.starts):
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
-        self.measured = [np.column_stack([m[c][k::self.stride] for c in self.coordinates])
-                         for m, k in zip(measured, self.starts)]  # (samples, coordinates) compared
-        self.measured = [None if seen.all() else seen for seen in self.measured]  # (None: every one)
+        compared = (np.column_stack([m[c][k::self.stride] for c in self.coordinates]) for m, k in zip(measured, self.starts))
+        self.measured = [None if seen.all() else seen for seen in compared]  # (samples, coordinates); None: every one
         coefficients = system.coefficients
         periods = [band_period([e.output(c)[k:] for c in self.coordinates], e.dt)
                    for e, k in zip(experiments, self.starts)]

@@ -319,10 +319,10 @@ def _toml(value) -> str:
 
 
 def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool = False,
-              fit: dict | None = None) -> str:
+              fit: dict | None = None, gaps: tuple[str, ...] = ()) -> str:
     """The TOML spec of ``oscillator`` reading ``train.csv`` and ``test.csv`` beside it
     (``fit``: ``[fit]`` settings beside the polish, e.g. ``{"estimator": "lasso"}``; the
-    documented defaults for the others)."""
+    documented defaults for the others; ``gaps``: the records loaded with ``gaps = true``)."""
     if mode not in MODES:
         raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
     o = oscillator
@@ -333,7 +333,7 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
         "truth": {"mass": o.mass, "coefficients": dict(o.coefficients),
                   "delay": {"signal": "x", "gain": o.gain, "tau": o.tau}},
         **{f"data.{which}": {"file": f"{which}.csv", "time": "t", "output": "x", "input": "f"}
-           for which in ("train", "test")},
+           | ({"gaps": True} if which in gaps else {}) for which in ("train", "test")},
         "model.library": library,
         "model.delay": delay,
         "model.constraints": {"nonnegative": ["x''"]},
@@ -351,17 +351,24 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
 
 
 def write(oscillator: Oscillator, folder, mode: str = "structure", known_gain: bool = False,
-          fit: dict | None = None) -> Path:
+          fit: dict | None = None, change=None) -> Path:
     """Write ``train.csv``, ``test.csv`` (columns t, x, f) and ``spec.toml`` into ``folder``;
-    the spec's path."""
+    the spec's path.  ``change(which, rows)``: the record's rows (samples × [t, x, f]) as
+    written, changed in place (an experiment's rounding, dropouts, a reversed input); a
+    record it leaves with NaN samples is loaded with ``gaps = true``."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    gaps = []
     for which in ("train", "test"):
         e = oscillator.experiment(which)
-        np.savetxt(folder / f"{which}.csv", np.column_stack([e.time, e.output("x"), e.input("f")]), fmt="%.10g",
-                   delimiter=",", header="t,x,f", comments="")
+        rows = np.column_stack([e.time, e.output("x"), e.input("f")])
+        if change is not None:
+            change(which, rows)
+        if np.isnan(rows).any():
+            gaps.append(which)
+        np.savetxt(folder / f"{which}.csv", rows, fmt="%.10g", delimiter=",", header="t,x,f", comments="")
     path = folder / "spec.toml"
-    path.write_text(spec_text(oscillator, mode, known_gain, fit), encoding="utf-8")
+    path.write_text(spec_text(oscillator, mode, known_gain, fit, tuple(gaps)), encoding="utf-8")
     return path
 
 
