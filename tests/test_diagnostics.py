@@ -300,6 +300,12 @@ def test_an_added_effect_the_polish_sets_to_zero_is_said():
 
     out = run(ROOT / "problems" / "hidden_friction.toml")
     assert [step.term for step in out.refinement.steps] == ["sign(x')"]
+    # the step's delay comes with its interval, which covers the truth (0.15) where the
+    # equation error leaves the delay undetermined (the step's tau is 0.001)
+    step = out.refinement.steps[0]
+    low, high = step.tau_interval
+    assert low <= step.tau <= high and low <= 0.15 <= high
+    assert out.to_dict()["refinement"][0]["tau_interval"] == [low, high]
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         _warn_added_then_zero(out)  # the friction stays: nothing to say

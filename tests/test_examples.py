@@ -26,9 +26,12 @@ def test_hidden_effect_story(monkeypatch, tmp_path, capsys):
     out = run_example("hidden_effect.py", monkeypatch, tmp_path, capsys)
     # the refinement table's one row: coulomb added, the test equation error falls 104x and
     # the free-run fit rises from 79 % to 98 % (measured)
-    steps = [line.split() for line in out.split("Refinement")[1].splitlines() if line.startswith("coulomb ")]
+    lines = out.split("Refinement")[1].splitlines()
+    steps = [line.split() for line in lines if line.startswith("coulomb ")]
     assert len(steps) == 1
-    before, after, fit_before, fit_after = map(float, steps[0][-5:-1])  # (then the delay after the step)
+    row = dict(zip(lines[1].split(), steps[0][1:]))  # the header's columns (the index is the row's first word)
+    before, after, fit_before, fit_after = (float(row[k]) for k in ("test_mse_before", "test_mse_after", "fit_before",
+                                                                    "fit_after"))
     assert before > 50 * after and fit_before < 85 and fit_after > 95
     for figure in ("1_linear_fit", "2_residual_vs_velocity", "3_error_falls", "4_final_fit"):
         assert (tmp_path / f"{figure}.png").stat().st_size > 10_000  # a drawn figure, not an empty file

@@ -45,7 +45,10 @@ from cvxid.regression.builder import RegressionBuilder, SystemBuilder
 class RefineStep:
     """One accepted addition and the errors around it: the test record's equation-error
     MSE and its free-run fit (%, the mean over coordinates) before and after, and the delay
-    after it; ``columns``: the columns it added (none for a delay estimated again)."""
+    after it with its 95 % interval (``tau_interval``, from the equation error's profile: an
+    interval spanning most of the delay's range says the equation error does not determine
+    the delay at that step); ``columns``: the columns it added (none for a delay estimated
+    again)."""
 
     added: str
     term: str
@@ -58,6 +61,7 @@ class RefineStep:
     fit_after: float | None
     tau: float | None = None
     columns: tuple[str, ...] = ()
+    tau_interval: tuple[float, float] | None = None
 
     @property
     def simulation_error_before(self) -> float | None:
@@ -69,7 +73,9 @@ class RefineStep:
         return None if self.fit_after is None else 1.0 - self.fit_after / 100.0
 
     def as_dict(self) -> dict:
-        return dict(self.__dict__, columns=list(self.columns), simulation_error_before=self.simulation_error_before,
+        return dict(self.__dict__, columns=list(self.columns),
+                    tau_interval=None if self.tau_interval is None else list(self.tau_interval),
+                    simulation_error_before=self.simulation_error_before,
                     simulation_error_after=self.simulation_error_after)
 
 
@@ -109,8 +115,13 @@ class Refinement:
         return self.system.single
 
     def table(self) -> pd.DataFrame:
-        return pd.DataFrame([{k: v for k, v in s.__dict__.items() if k != "columns"} for s in self.steps]) \
-            .set_index("added") if self.steps else pd.DataFrame()
+        """One row per added effect; the delay's interval as ``tau_low`` and ``tau_high``."""
+        def row(step):
+            low, high = step.tau_interval or (None, None)
+            return dict({k: v for k, v in step.__dict__.items() if k not in ("columns", "tau_interval")},
+                        **({"tau_low": low, "tau_high": high} if low is not None else {}))
+
+        return pd.DataFrame([row(s) for s in self.steps]).set_index("added") if self.steps else pd.DataFrame()
 
     @property
     def labels(self) -> list[str]:
@@ -308,10 +319,17 @@ def refine(
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
                                 mean_fit(old), mean_fit(new_cmp), new.tau,
                                 () if joined.reestimated and not (best == "delay" and lacking) else tuple(  # (added)
-                                    new.spec.column(label, joined.term.name) for label in joined.equations)))
+                                    new.spec.column(label, joined.term.name) for label in joined.equations),
+                                _interval(new)))
         comparisons += [new_cmp] if comparisons else [old, new_cmp]
         system, (train_rows, test_rows) = new, rows
     return Refinement(system, steps, diagnoses, comparisons, start, stopped, (train_rows, test_rows))
+
+
+def _interval(system: IdentifiedSystem) -> tuple[float, float] | None:
+    """The delay's 95 % interval from ``system``'s equation-error profile, if it has one."""
+    interval = system.info.get("tau_interval")
+    return None if interval is None else (float(interval[0]), float(interval[1]))
 
 
 def _inclusion(before: IdentifiedSystem, after: IdentifiedSystem, name: str, dx: Diagnosis,
