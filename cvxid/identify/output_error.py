@@ -119,6 +119,17 @@ bound's own margin over the least (a quadratic profile's point half a width past
 3; a point far above it is a steep rise the chord misplaces)."""
 BISECTIONS = 3
 """Points added at most at each edge of the delay's interval (the gap shrinks 8-fold)."""
+RESTARTS = 2
+"""Times at most the polish fits every parameter again from a profile point that fits better
+than its estimate, by more than :data:`RESTART_SHARE` of the margin of the interval's bound
+over the least squared error (the points its interval's edges added; a stick-slip friction's
+simulation error bends at every switch, and a local fit stops short: held-out tuning seed
+17, Coulomb friction, 46 s, stopped at a delay 4.5 % short where the profile's edge found a
+point 16 noise units of squared error lower, 1.1 % from the truth)."""
+RESTART_SHARE = 0.25
+"""A profile point that fits better than the estimate by less than this share of the
+interval's margin moves the estimate by little within its interval, and is not worth a fit
+of every parameter."""
 
 INPUT_NOISE_DRAWS = 8
 """Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
@@ -293,12 +304,26 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
             own = None
         if own is not None and own.rms_after < best.rms_after:
             best = own
-    level = best  # the fit on the profile's own simulation step: the profile is read against it
-    if final:
-        best = output_error(best.system, experiments, best.initial, step=experiments[0].dt,
-                            max_iterations=final_iterations, input_noise=True)
-        if _stride(coarse_step, experiments) == 1:  # the sample step is the profile's step
-            level = best
+    best, level = _finished(best, experiments, coarse_step, final, final_iterations)
+    profile = None
+    if points:
+        for restart in range(RESTARTS + 1):
+            points[level.parameters["tau"]] = (level.rms_after, level)
+            _resolve_edges(points, best, experiments, coarse_step)
+            _, rms, bound, _ = _inside(points, best)
+            lowest = points[min(points, key=lambda t: points[t][0])][1]
+            if level.rms_after**2 - rms.min() ** 2 <= RESTART_SHARE * (bound - rms.min() ** 2) or restart == RESTARTS:
+                break
+            try:  # a profile point fits better than the estimate: every parameter again from there
+                again = _finished(output_error(lowest.system, experiments, lowest.initial, step=coarse_step,
+                                               max_iterations=max_iterations, input_noise=not final),
+                                  experiments, coarse_step, final, final_iterations)
+            except CvxidError:
+                break
+            if not again[1].rms_after < level.rms_after:
+                break
+            best, level = again
+        profile = _interval(points, best)
     if not best.rms_after <= before:
         tried = "from the delay profile's best delay and from the start's own" if points else "from the start"
         warnings.warn(
@@ -306,12 +331,18 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
             f"{best.rms_after:.4g}), fitted {tried}: the simulation error has another basin the fit cannot leave "
             "(an estimated gain trading with the stiffness?); read the polished model with care, or give the gain "
             "([model.delay] gain)", CvxidWarning, stacklevel=2)
-    profile = None
-    if points:
-        points[level.parameters["tau"]] = (level.rms_after, level)
-        _resolve_edges(points, best, experiments, coarse_step)
-        profile = _interval(points, best)
     return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
+
+
+def _finished(fit: PolishResult, experiments, coarse_step: float, final: bool, iterations: int):
+    """The polish's last fit from ``fit`` (at the sample step with ``iterations`` more when
+    ``final``), and the fit on the delay profile's own simulation step that the profile is
+    read against (the last fit itself when the sample step is the profile's step)."""
+    if not final:
+        return fit, fit
+    last = output_error(fit.system, experiments, fit.initial, step=experiments[0].dt, max_iterations=iterations,
+                        input_noise=True)
+    return last, last if _stride(coarse_step, experiments) == 1 else fit
 
 
 SMOOTHING_PERIODS = 0.05
