@@ -834,3 +834,28 @@ def test_bench_says_when_scikit_learn_is_not_there_to_compare(monkeypatch, capsy
     out = capsys.readouterr().out
     assert "(c) not measured: scikit-learn is not installed (pip install \"cvxid[bench]\" brings it)" in out
     assert "(a) vs (c)" not in out
+
+
+@pytest.mark.parametrize("blow", [0.3, 2.0])
+def test_an_input_that_moves_only_before_the_fit_sees_the_record_is_refused(blow):
+    """Eighth outside check: an impact hammer's blow inside an exact delay's history (tau_max)
+    left a free decay with a zero force after it, and the run gave an inertia of 1e-9 and
+    warnings about the input's sign.  A blow the rows see passes."""
+    from dataclasses import replace as changed
+
+    from cvxid import build_regression, load_problem
+
+    model = load_problem("hidden_friction").model  # exact delay, tau_max 0.4 s
+    rng = np.random.default_rng(0)
+    t = np.arange(10_001) * 1e-3
+    after = np.clip(t - blow, 0.0, None)
+    x = np.where(t > blow, 0.3 * np.exp(-0.2 * after) * np.sin(2.4 * after), 0.0) + 1e-3 * rng.standard_normal(t.size)
+    f = 50.0 * np.exp(-0.5 * ((t - blow) / 0.01) ** 2) + 1e-3 * rng.standard_normal(t.size)
+    record = Experiment(t, {"x": x}, {"f": f})
+    linear = changed(model, library=Library(["x", "x'"]))
+    if blow < 1.0:
+        with pytest.raises(CvxidError, match=r"input 'f' moves only in the record's first 0\.\d+ s \(tau_max = 0\.4 s "
+                                             r"of measured history.*pre-trigger.*tau_max"):
+            build_regression(linear, record, tau=0.1)
+    else:
+        assert build_regression(linear, record, tau=0.1).shape[1] == 3

@@ -10,15 +10,17 @@ from __future__ import annotations
 import csv
 import re
 import warnings
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
 
+from cvxid.data.hold import jumps, looks_held
 from cvxid.data.sensor import checked
 from cvxid.errors import CvxidError, CvxidWarning
+from cvxid.metrics import noise_level
 
 MIN_SAMPLES = 20
 """Fewest samples an experiment may have (the algebraic operation needs a record)."""
@@ -84,6 +86,21 @@ MAGNITUDES = (1e-100, 1e100)
 least squares, 1e-310 is subnormal): the data are rescaled by the user, never silently."""
 
 
+HISTORY_ONLY = 0.01
+"""The least share of an input's excitation energy (above its noise) that must fall after
+the part of a record the fit does not see (:meth:`Experiment.check_signals`): an impact
+hammer's blow at the end of an exact delay's history left a free decay with a zero force
+and an inertia of 1e-9 (an eighth outside check)."""
+
+
+def _energy(part: np.ndarray, whole: np.ndarray) -> float:
+    """The squared deviations of ``part`` from ``whole``'s median, less what its white noise
+    (:func:`~cvxid.metrics.noise_level` of ``whole``) accounts for; at least 0."""
+    finite = part[np.isfinite(part)]
+    level = noise_level(whole[np.isfinite(whole)])
+    return max(float(np.sum((finite - np.nanmedian(whole)) ** 2)) - finite.size * level**2, 0.0)
+
+
 @dataclass(frozen=True)
 class Experiment:
     """One record of a system: time, outputs, inputs (and optional measured velocities).
@@ -100,6 +117,11 @@ class Experiment:
         Used in messages and reports.
     velocities : mapping of str to array_like, optional
         Measured velocities by coordinate name, when a user has them.
+    gaps : bool
+        NaN samples are gaps (the integrals restart after each).
+    held : sequence of str
+        Inputs held between samples (a zero-order hold: a controller's or a DAQ's command),
+        read half a sample later than a smooth signal (:mod:`cvxid.data.hold`).
     """
 
     time: np.ndarray
@@ -108,9 +130,15 @@ class Experiment:
     name: str = "experiment"
     velocities: Mapping[str, np.ndarray] = field(default_factory=dict)
     gaps: bool = False
+    held: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         t = _as_signal("time", self.time, self.name)
+        object.__setattr__(self, "held", tuple(self.held))
+        unknown = [h for h in self.held if h not in self.inputs]
+        if unknown:
+            raise CvxidError(f"experiment '{self.name}': held names input(s) {', '.join(map(repr, unknown))} it does "
+                             f"not have (it has {sorted(self.inputs)})")
         for group, example in (("outputs", '{"x": x}'), ("inputs", '{"f": f}'), ("velocities", '{"x": v}')):
             if not isinstance(getattr(self, group), Mapping):
                 raise CvxidError(f"experiment '{self.name}': {group} must map names to arrays ({example}), got "
@@ -194,29 +222,44 @@ class Experiment:
         negated input, as the link equation of a flexible joint is).  With ``delay``
         :math:`\\tau_u > 0`, the input as the system receives it, :math:`u(t - \\tau_u)` at
         the samples: a cubic spline through the record, read :math:`\\tau_u` earlier; before
-        the record's start it holds the first sample (the only value known there)."""
+        the record's start it holds the first sample (the only value known there).  A held
+        input (:attr:`held`) is read half a sample later still, by straight lines between
+        its samples (a spline overshoots at a jump)."""
         if name.startswith("-") and name not in self.inputs and name[1:].strip() in self.inputs:
             return -self.input(name[1:].strip(), delay)
         if name not in self.inputs:
             raise CvxidError(
                 f"experiment '{self.name}' has no input '{name}' (it has {sorted(self.inputs)})"
             )
-        if not delay:
-            return self.inputs[name]
         if not np.isfinite(delay) or delay < 0:
             raise CvxidError(f"an input delay must be a finite number >= 0, got {delay}")
+        if name in self.held:  # half a sample late, and straight between samples (a spline rings at a jump)
+            return np.interp(self.time - delay - 0.5 * self.dt, self.time, self.inputs[name])
+        if not delay:
+            return self.inputs[name]
         return CubicSpline(self.time, self.inputs[name])(np.maximum(self.time - delay, self.time[0]))
 
-    def check_signals(self, inputs, outputs) -> None:
+    def check_signals(self, inputs, outputs, unseen: float = 0.0, why: str = "") -> None:
         """Refuse a record whose input is constant (nothing excites the system: a free decay
-        too) or whose output is constant (no motion to identify)."""
+        too) or whose output is constant (no motion to identify), and one whose input moves
+        only in its first ``unseen`` seconds, which the fit does not see (``why``: what they
+        are): less than :data:`HISTORY_ONLY` of its excitation energy above the noise after
+        them."""
         def constant(v):  # (NaN samples, gaps, do not count)
             return np.all(np.isnan(v)) or np.nanmax(v) == np.nanmin(v)
 
+        first = int(np.searchsorted(self.time, self.time[0] + unseen - 1e-9 * self.dt))
         for name in inputs:
-            if constant(self.input(name)):
+            u = self.input(name)
+            if constant(u):
                 raise CvxidError(f"experiment '{self.name}': input '{name}' is constant, so it does not excite the "
                                  "system; identification needs a varying input")
+            if 0 < first < u.size and _energy(u[first:], u) < HISTORY_ONLY * _energy(u, u):
+                raise CvxidError(
+                    f"experiment '{self.name}': input '{name}' moves only in the record's first {unseen:.3g} s "
+                    f"({why}), which the fit does not see: after them the record is a free motion that nothing "
+                    "excites; start the record earlier before the excitation (a longer pre-trigger), or lower "
+                    "[model.delay] tau_max")
         for name in outputs:
             if constant(self.output(name)):
                 raise CvxidError(f"experiment '{self.name}': output '{name}' is constant, so the record holds no "
@@ -229,7 +272,8 @@ class Experiment:
                              f"samples; at least {MIN_SAMPLES} inside the record are needed")
         return Experiment(self.time[a:b], {k: v[a:b] for k, v in self.outputs.items()},
                           {k: v[a:b] for k, v in self.inputs.items()}, name=name or self.name,
-                          velocities={k: v[a:b] for k, v in self.velocities.items()}, gaps=self.gaps)
+                          velocities={k: v[a:b] for k, v in self.velocities.items()}, gaps=self.gaps,
+                          held=self.held)
 
     def segments(self) -> list["Experiment"]:
         """The gap-free runs of the record (itself when it has no NaN samples); runs too
@@ -264,7 +308,7 @@ class Experiment:
         for name, y in self.outputs.items():
             known = np.isfinite(y)
             outputs[name] = np.interp(self.time, self.time[known], y[known]) if not known.all() else y
-        return Experiment(self.time, outputs, self.inputs, self.name, self.velocities, gaps=self.gaps)
+        return Experiment(self.time, outputs, self.inputs, self.name, self.velocities, gaps=self.gaps, held=self.held)
 
     def _runs(self, signals: list[np.ndarray], kind: str) -> list["Experiment"]:
         """The runs of the record where none of ``signals`` is NaN, at least
@@ -510,6 +554,7 @@ def load(
     samples: tuple[int, int] | None = None,
     fraction: tuple[float, float] | None = None,
     time_unit: str = "s",
+    hold: bool | Sequence[str] | None = None,
 ) -> Experiment:
     """Read an experiment from a CSV file (header row names the columns), a MATLAB ``.mat``
     file or a NumPy ``.npz`` archive (variables by name), chosen by the suffix.
@@ -522,7 +567,10 @@ def load(
     about each, ``"gap"`` also makes their samples gaps, ``"ignore"`` skips the check.
     ``samples = (first, end)`` then ``fraction = (start, end)`` keep a part of the record
     (before the check: its messages count the part's samples).  ``time_unit`` is the
-    time column's unit (:data:`TIME_UNITS`): the experiment's time is in seconds.
+    time column's unit (:data:`TIME_UNITS`): the experiment's time is in seconds.  ``hold``:
+    the inputs held between samples (True: every one; a list of the model's input names;
+    False: none, read as smooth signals; None: none, with a warning for an input that looks
+    held, :mod:`cvxid.data.hold`).
     """
     outputs, inputs, velocities = _named(outputs, inputs, velocities)
     path = Path(path)
@@ -546,7 +594,7 @@ def load(
         a, b = part_bounds(_common_length(columns, used, what, path), samples, fraction, path)
         columns = {**columns, **{c: np.squeeze(columns[c])[a:b] for c in used}}
     return _experiment(columns, what, path, time, outputs, inputs, velocities, name or path.stem, gaps, faults,
-                       time_unit)
+                       time_unit, hold)
 
 
 def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what: str, path: Path) -> int:
@@ -571,13 +619,13 @@ def _common_length(columns: Mapping[str, np.ndarray], used: Sequence[str], what:
 
 def from_frame(frame, time: str, outputs: Mapping[str, str], inputs: Mapping[str, str],
                velocities: Mapping[str, str] | None = None, name: str = "frame", gaps: bool = False,
-               faults: str = "warn", time_unit: str = "s") -> Experiment:
-    """An experiment from a pandas DataFrame, by column names (sensor check and
-    ``time_unit`` as :func:`load`)."""
+               faults: str = "warn", time_unit: str = "s", hold: bool | Sequence[str] | None = None) -> Experiment:
+    """An experiment from a pandas DataFrame, by column names (sensor check, ``time_unit``
+    and ``hold`` as :func:`load`)."""
     outputs, inputs, velocities = _named(outputs, inputs, velocities)
     columns = {str(c): frame[c].to_numpy() for c in frame.columns}
     return _experiment(columns, "column", "DataFrame", time, outputs, inputs, velocities, name, gaps, faults,
-                       time_unit)
+                       time_unit, hold)
 
 
 TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0}
@@ -629,7 +677,7 @@ def _named(outputs, inputs, velocities) -> tuple[dict, dict, dict | None]:
 
 
 def _experiment(columns, what, source, time, outputs, inputs, velocities, name, gaps, faults,
-                time_unit: str = "s") -> Experiment:
+                time_unit: str = "s", hold=None) -> Experiment:
     scale = seconds_per(time_unit)  # (a wrong unit before the record is read)
     named = [("a measured output", outputs), ("an input", inputs), ("a measured velocity", velocities or {})]
     for i, (first, a) in enumerate(named):
@@ -650,4 +698,29 @@ def _experiment(columns, what, source, time, outputs, inputs, velocities, name, 
     # smooth a clipped top away): on the sample index first, then on the recorded time
     recorded = checked(Experiment(np.arange(np.size(t), dtype=float), signals[0], signals[1], name=name,
                                   velocities=signals[2], gaps=gaps), faults)
-    return Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2], gaps=recorded.gaps)
+    experiment = Experiment(t, recorded.outputs, signals[1], name=name, velocities=signals[2], gaps=recorded.gaps)
+    held = _held(hold, experiment.inputs, name)
+    return replace(experiment, held=held) if held else experiment
+
+
+def _held(hold, inputs: Mapping[str, np.ndarray], name: str) -> tuple[str, ...]:
+    """The inputs ``hold`` names (see :func:`load`); with None, a warning for each input
+    that looks held (:func:`~cvxid.data.hold.looks_held`)."""
+    if hold is None:
+        for k, u in inputs.items():
+            if looks_held(u):
+                warnings.warn(
+                    f"experiment '{name}': input '{k}' is level between {jumps(u).size} single-sample jumps, as a "
+                    "command held between samples is (a controller's, a DAQ's); cvxid reads "
+                    "it as a smooth signal, which puts each jump half a sample early and can move a fed-back delay "
+                    "by several %: if the plant received it held, say so ([data.*] hold = true; "
+                    "cvxid.load(..., hold=True)); hold = false reads it as smooth without this warning",
+                    CvxidWarning, stacklevel=3)
+        return ()
+    if isinstance(hold, bool):
+        return tuple(inputs) if hold else ()
+    listed = [hold] if isinstance(hold, str) else hold
+    if not isinstance(listed, (list, tuple)) or not all(isinstance(h, str) and h in inputs for h in listed):
+        raise CvxidError(f"experiment '{name}': hold is true, false or a list of the inputs held between samples "
+                         f"(of {sorted(inputs)}), got {hold!r}")
+    return tuple(listed)

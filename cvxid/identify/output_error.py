@@ -125,7 +125,7 @@ than its estimate, by more than :data:`RESTART_SHARE` of the margin of the inter
 over the least squared error (the points its interval's edges added; a stick-slip friction's
 simulation error bends at every switch, and a local fit stops short: held-out tuning seed
 17, Coulomb friction, 46 s, stopped at a delay 4.5 % short where the profile's edge found a
-point 16 noise units of squared error lower, 1.1 % from the truth)."""
+point 16 noise units of squared error lower; from there 0.9 % from the truth)."""
 RESTART_SHARE = 0.25
 """A profile point that fits better than the estimate by less than this share of the
 interval's margin moves the estimate by little within its interval, and is not worth a fit
@@ -814,7 +814,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
     step = experiments[0].dt * problem.stride
     moves = []
     for _ in range(draws):
-        noisy = [replace(e, inputs={**e.inputs, **{name: e.input(name) + level * rng.standard_normal(e.time.size)
+        noisy = [replace(e, inputs={**e.inputs, **{name: e.inputs[name] + level * rng.standard_normal(e.time.size)
                                                    for name, level in each.items()}})
                  for e, each in zip(experiments, levels)]
         again = _Problem(problem.base, noisy, step, problem.initial(theta), problem.fixed_tau)

@@ -334,6 +334,7 @@ class ProblemSpec:
             samples=table.get("samples"),
             fraction=table.get("fraction"),
             time_unit=_string(table, "time_unit", where, "s"),
+            hold=_hold(table, where, inputs),
         )
 
     def __repr__(self) -> str:
@@ -353,13 +354,25 @@ VELOCITIES = ESTIMATORS + ("measured", "auto")
 """``[fit] velocity`` values that are not a measured column's name."""
 
 
+def _hold(table: Table, where: str, inputs: list[str]):
+    """``[data.*] hold``: true, false, or a list of the model's inputs held between samples
+    (absent: None, a warning for an input that looks held)."""
+    hold = table.get("hold")
+    if hold is None or isinstance(hold, bool):
+        return hold
+    if isinstance(hold, list) and all(isinstance(h, str) and h in inputs for h in hold):
+        return hold
+    raise CvxidError(f"spec: [{where}] hold is true, false or a list of the inputs held between samples (of "
+                     f"{', '.join(inputs)}), got {hold!r}")
+
+
 def _unknown_velocity(velocity: str, why: str) -> CvxidError:
     return CvxidError(f"spec: [fit] velocity '{velocity}' is neither an estimator ({', '.join(VELOCITIES)}) nor a "
                       f"measured column: {why}")
 
 
 DATA_KEYS = {"file", "time", "dt", "output", "input", "velocity", "simulate", "gaps", "faults", "fraction", "samples",
-             "time_unit"}
+             "time_unit", "hold"}
 SIM_KEYS = {"duration", "dt", "x0", "v0", "seed", "noise", "input"}
 MODEL_KEYS = {"coordinate", "input", "inertia", "mass", "library", "delay", "constraints", "names", "algebraic", "tie",
               "input_delay"}
