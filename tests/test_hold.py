@@ -113,3 +113,16 @@ def test_the_hold_key_is_checked(held_records):
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         assert cvxid.load_problem(held_records / "quiet.toml").experiment("train").held == ()
+
+
+def test_init_offers_hold_for_a_held_input_only(held_records, tmp_path):
+    from cvxid.app.cli import main
+
+    assert main(["init", str(held_records / "train.csv"), "-o", str(tmp_path / "held.toml")]) == 0
+    lines = [line for line in (tmp_path / "held.toml").read_text().splitlines() if "hold = true" in line]
+    assert lines and lines[0].startswith("# hold = true") and "single-sample jumps" in lines[0]
+    t = np.arange(5000) * DT
+    rows = np.column_stack([t, np.sin(2 * t), 3 * np.sin(2 * t + 1) + np.sin(7 * t)])
+    np.savetxt(tmp_path / "smooth.csv", rows, delimiter=",", header="t,x,f", comments="")
+    assert main(["init", str(tmp_path / "smooth.csv"), "-o", str(tmp_path / "smooth.toml")]) == 0
+    assert "hold" not in (tmp_path / "smooth.toml").read_text()

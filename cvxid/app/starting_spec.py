@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from cvxid.data.experiment import READERS, TIME_UNITS, first_step_back, first_text, missing_rows, seconds_per
+from cvxid.data.hold import looks_held
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -54,6 +55,9 @@ class Columns:
     time_unit: str = "s"
     """The time column's unit (``--time-unit``, or read off its name: ``time_ms``,
     ``t [us]``); ``dt`` and ``median_period`` are in seconds."""
+    held: bool = False
+    """Whether the input is level between single-sample jumps, as a command held between
+    samples is (:func:`~cvxid.data.hold.looks_held`): the spec offers ``hold = true``."""
 
 
 def _numeric(columns: dict) -> dict[str, np.ndarray]:
@@ -224,7 +228,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         reasons.append("missing samples in the output or the input, loaded as gaps")
     gaps = gaps or lost is not None
     return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps,
-                   time_unit or "s")
+                   time_unit or "s", looks_held(numeric[input]))
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -288,6 +292,9 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
     if columns.gaps:
         lines.append("gaps = true                      # missing (empty or NaN) samples: the integrals and the "
                      "simulations restart after each gap")
+    if columns.held:
+        lines.append("# hold = true                    # the input is level between single-sample jumps: if the plant "
+                     "received it held (a controller's or a DAQ's command), say so; hold = false: a smooth signal")
     return "\n".join(lines)
 
 
