@@ -12,7 +12,7 @@ to JSON in one schema (``cvxid.system/1``) whatever :math:`N` (files of the earl
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +21,7 @@ import pandas as pd
 from cvxid.data.experiment import Experiment
 from cvxid.initial_state import free_run
 from cvxid.errors import CvxidError
-from cvxid.metrics import fit_percent, noise_ceiling_percent, relative_error_percent
+from cvxid.metrics import fit_percent, measurement_noise, noise_ceiling_percent, relative_error_percent
 from cvxid.model.equation import ModelSpec
 from cvxid.model.system import SystemSpec
 from cvxid.model.terms import latex_symbol
@@ -376,6 +376,30 @@ class IdentifiedSystem:
 
         return run
 
+    def input_noise_spread(self, experiment: Experiment, state: dict, free: dict) -> dict[str, float]:
+        """Each coordinate's RMS response to the noise on the measured inputs: the free run
+        from ``state`` with white noise added at each read input's measurement-noise level
+        (:func:`~cvxid.metrics.measurement_noise`), less ``free`` (coordinate → the run from
+        ``state`` on the record as measured, aligned to the record's end).  The part of a
+        perfect model's free-run error that the measured input's noise makes; 0 where no
+        input carries such noise or the noisy run diverges.  Seeded."""
+        read = {m.spec.input_column for m in self.models.values()} & set(experiment.inputs)
+        levels = {name: measurement_noise(experiment.inputs[name]) for name in read}
+        if not any(levels.values()):
+            return {c: 0.0 for c in self.coordinates}
+        rng = np.random.default_rng(0)
+        noisy = replace(experiment, inputs={**experiment.inputs, **{
+            name: experiment.inputs[name] + level * rng.standard_normal(experiment.n) for name, level in levels.items()}})
+        try:
+            again = self.simulator(noisy)(state)
+        except SimulationDiverged:
+            return {c: 0.0 for c in self.coordinates}
+        spread = {}
+        for c in self.coordinates:
+            difference = again[c][again[c].size - free[c].size:] - free[c]
+            spread[c] = float(np.sqrt(np.nanmean(difference**2))) if np.isfinite(difference).any() else 0.0
+        return spread
+
     def initial_state(self, experiment: Experiment) -> dict[str, tuple[float, float]]:
         """Every coordinate's own state where :meth:`simulate` starts, from a smoothing fit."""
         delay = next(iter(self.specs.values())).delay
@@ -396,6 +420,7 @@ class IdentifiedSystem:
                 record = {c: fit_percent(measured[c], own[c]) for c in self.coordinates}
         except SimulationDiverged:
             sim = None
+        driven = {} if sim is None else self.input_noise_spread(experiment, state, sim)
         rows = []
         for c in self.coordinates:
             y = measured[c]
@@ -405,7 +430,7 @@ class IdentifiedSystem:
             if initial == "estimated":
                 row["record_fit_percent"] = -np.inf if record is None else record[c]
             row.update(initial_position=state[c][0], initial_velocity=state[c][1],
-                       noise_ceiling_percent=noise_ceiling_percent(y))
+                       noise_ceiling_percent=noise_ceiling_percent(y, driven.get(c, 0.0)))
             rows.append(row)
         return pd.DataFrame(rows).set_index("coordinate")
 

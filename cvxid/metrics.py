@@ -149,12 +149,26 @@ def quantisation_step(y: np.ndarray) -> float:
     return 0.0
 
 
-def noise_ceiling_percent(y: np.ndarray) -> float:
-    r"""The fit (%) a perfect model reaches on ``y`` when ``y`` carries white measurement
-    noise of the level :func:`noise_level` reads off it:
-    :math:`100\,(1 - \hat\sigma / \mathrm{std}(y))`."""
+def noise_ceiling_percent(y: np.ndarray, driven: float = 0.0) -> float:
+    r"""The fit (%) a perfect model's free run reaches on ``y`` when ``y`` carries white
+    measurement noise of the level :func:`noise_level` reads off it, and the simulation,
+    driven by a measured input, carries the RMS ``driven`` of its response to that input's
+    own noise: :math:`100\,(1 - \sqrt{\hat\sigma^2 + \sigma_u^2} / \mathrm{std}(y))`."""
     y = np.asarray(y, float)
-    return float(100 * (1 - noise_level(y) / np.std(y)))
+    return float(100 * (1 - np.hypot(noise_level(y), driven) / np.std(y)))
+
+
+INPUT_NOISE_SHARE = 0.05
+"""The largest white-noise level, as a share of an input's standard deviation, that
+:func:`measurement_noise` takes as measurement noise (above it: broadband excitation, white
+noise or a PRBS, whose samples cannot be told from noise)."""
+
+
+def measurement_noise(u: np.ndarray) -> float:
+    """The white measurement noise on a measured input ``u`` (:func:`noise_level`), or 0
+    where it exceeds :data:`INPUT_NOISE_SHARE` of ``u``'s spread (broadband excitation)."""
+    level = noise_level(u)
+    return level if 0 < level <= INPUT_NOISE_SHARE * np.std(u) else 0.0
 
 
 def relative_error_percent(estimate, truth):

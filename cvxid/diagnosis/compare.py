@@ -42,7 +42,9 @@ class Comparison:
     :mod:`cvxid.initial_state`), ``"record"`` (the record's smoothed first
     state) or ``"given"``; ``record_fit_percent`` is the fit from the record's own start,
     kept beside an estimated one; ``ceiling_percent`` is the fit a perfect model would reach
-    under the record's measurement noise (:func:`~cvxid.metrics.noise_ceiling_percent`)."""
+    under the record's measurement noise, the output's and the measured input's through the
+    model (:func:`~cvxid.metrics.noise_ceiling_percent`,
+    :meth:`~cvxid.identified.IdentifiedSystem.input_noise_spread`)."""
 
     time: np.ndarray
     measured: np.ndarray
@@ -230,6 +232,7 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
         ahead = None
         message = (message + "; " if message else "") + f"k-step: {exc}"
     message = "; ".join(m for m in (note, message) if m)
+    driven = {} if sims is None else system.input_noise_spread(experiment, state, sims)
     out = {}
     for c in coords:
         y, sim = measured[c], None if sims is None else sims[c]
@@ -237,7 +240,7 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
         out[c] = Comparison(experiment.time[start:], y, sim, None if sim is None else fit_percent(y, sim), nrmse, k,
                             None if ahead is None else fit_percent(experiment.output(c), ahead[c]), message, initial,
                             None if state is None else state[c], None if record is None else fit_percent(y, record[c]),
-                            None if record is None else record[c], noise_ceiling_percent(y))
+                            None if record is None else record[c], noise_ceiling_percent(y, driven.get(c, 0.0)))
     return out
 
 

@@ -56,7 +56,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
-from cvxid.metrics import band_period, noise_level
+from cvxid.metrics import band_period, measurement_noise
 from cvxid.model.symbols import velocity_symbol
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
@@ -134,9 +134,6 @@ of every parameter."""
 INPUT_NOISE_DRAWS = 8
 """Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
 estimates the spread that the inputs' noise gives the parameters."""
-INPUT_NOISE_SHARE = 0.05
-"""The largest white-noise level, as a share of an input's standard deviation, that
-:func:`input_noise_covariance` takes as measurement noise (above it: broadband excitation)."""
 DIVERGED = 1e6
 """The residual a diverged simulation is filled with."""
 ROUGH_STEP = 10.0
@@ -789,7 +786,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
     * An upper estimate: the part of :math:`G_\theta n` the fit leaves in the residual is
       counted by :func:`standard_errors` as well.  With :data:`INPUT_NOISE_DRAWS` draws
       its standard errors carry a sampling error of about 25 %.
-    * An input whose white "noise" exceeds :data:`INPUT_NOISE_SHARE` of its standard
+    * An input whose white "noise" exceeds :data:`~cvxid.metrics.INPUT_NOISE_SHARE` of its standard
       deviation is taken as broadband excitation (white noise, a PRBS), not as noise on a
       smooth signal, and left out: :func:`~cvxid.metrics.noise_level` cannot tell the two
       apart.
@@ -800,8 +797,8 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
     read = {m.spec.input_column for m in problem.base.models.values()}
     levels = []
     for e in experiments:
-        each = {name: noise_level(e.input(name)) for name in read & set(e.inputs)}
-        levels.append({n: v for n, v in each.items() if 0 < v <= INPUT_NOISE_SHARE * np.std(e.input(n))})
+        each = {name: measurement_noise(e.input(name)) for name in read & set(e.inputs)}
+        levels.append({n: v for n, v in each.items() if v > 0})
     if not any(levels):
         return None
     seen = np.any(jacobian != 0, axis=0)
