@@ -1,6 +1,7 @@
 """The bad-input table (docs/bad-input.md), row by row (rows already covered elsewhere are named)."""
 
 import re
+from dataclasses import replace
 import warnings
 
 import cvxpy as cp
@@ -836,26 +837,27 @@ def test_bench_says_when_scikit_learn_is_not_there_to_compare(monkeypatch, capsy
     assert "(a) vs (c)" not in out
 
 
-@pytest.mark.parametrize("blow", [0.3, 2.0])
-def test_an_input_that_moves_only_before_the_fit_sees_the_record_is_refused(blow):
+@pytest.mark.parametrize("force", ["blow at 0.3 s", "blow at 0.6 s", "step at 0.3 s"])
+def test_an_input_that_acts_only_in_the_delay_s_history_is_refused(force):
     """Eighth outside check: an impact hammer's blow inside an exact delay's history (tau_max)
-    left a free decay with a zero force after it, and the run gave an inertia of 1e-9 and
-    warnings about the input's sign.  A blow the rows see passes."""
-    from dataclasses import replace as changed
-
+    leaves a free motion with no force after it, and the run gave an inertia of 1e-9 and
+    warnings about the input's sign.  A blow after the history, or a step inside it (its
+    force stays), pass (a stranger's review: a first version that also asked for a quarter
+    window after the history refused records that identified within 1.5 %)."""
     from cvxid import build_regression, load_problem
 
     model = load_problem("hidden_friction").model  # exact delay, tau_max 0.4 s
     rng = np.random.default_rng(0)
     t = np.arange(10_001) * 1e-3
-    after = np.clip(t - blow, 0.0, None)
-    x = np.where(t > blow, 0.3 * np.exp(-0.2 * after) * np.sin(2.4 * after), 0.0) + 1e-3 * rng.standard_normal(t.size)
-    f = 50.0 * np.exp(-0.5 * ((t - blow) / 0.01) ** 2) + 1e-3 * rng.standard_normal(t.size)
-    record = Experiment(t, {"x": x}, {"f": f})
-    linear = changed(model, library=Library(["x", "x'"]))
-    if blow < 1.0:
-        with pytest.raises(CvxidError, match=r"input 'f' moves only in the record's first 0\.\d+ s \(tau_max = 0\.4 s "
-                                             r"of measured history.*pre-trigger.*tau_max"):
+    at = float(force.split()[-2])
+    after = np.clip(t - at, 0.0, None)
+    x = np.where(t > at, 0.3 * np.exp(-0.2 * after) * np.sin(2.4 * after), 0.0) + 1e-3 * rng.standard_normal(t.size)
+    shape = np.exp(-0.5 * ((t - at) / 0.01) ** 2) if force.startswith("blow") else (t >= at).astype(float)
+    record = Experiment(t, {"x": x}, {"f": 50.0 * shape + 1e-3 * rng.standard_normal(t.size)})
+    linear = replace(model, library=Library(["x", "x'"]))
+    if force == "blow at 0.3 s":
+        with pytest.raises(CvxidError, match=r"input 'f' acts only in the first tau_max = 0\.4 s of the record.*"
+                                             r"pre-trigger.*tau_max"):
             build_regression(linear, record, tau=0.1)
     else:
         assert build_regression(linear, record, tau=0.1).shape[1] == 3

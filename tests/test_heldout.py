@@ -395,3 +395,16 @@ def test_intervals_walk_the_valley_of_a_free_gain(tmp_path):
     said = [w for w in out.warnings if "not identified separately" in w or "not determined apart" in w]
     assert len(said) == 1 and "x - gain" in said[0], out.warnings
     assert not any("the data do not determine x" in w for w in out.warnings), out.warnings  # (not "remove x")
+
+
+@pytest.mark.slow
+def test_the_polish_ends_at_the_best_point_its_profile_found(tmp_path):
+    """Held-out tuning seed 17 (Coulomb friction, 46 s, noise 0.01, the gain given): the
+    profile's refined edges found a delay that fits 16 noise units of squared error better
+    than the estimate, which stayed at 0.1938 (-4.5 %) for a truth of 0.2028; the polish
+    now fits again from there (measured: +0.92 %, its interval covering)."""
+    oscillator = draw(17, "coulomb", 0.01)
+    result = run(write(oscillator, tmp_path, known_gain=True))
+    assert abs(result.system.tau / oscillator.tau - 1) < 0.02
+    low, high = result.polish.interval("tau")
+    assert low <= oscillator.tau <= high

@@ -104,7 +104,7 @@ def test_a_held_input_said_so_gives_the_delay_back(held_records):
 
 def test_the_hold_key_is_checked(held_records):
     (held_records / "bad.toml").write_text(SPEC.format(hold='hold = "yes"'))
-    with pytest.raises(CvxidError, match=r"\[data.train\] hold is true, false or a list of the inputs"):
+    with pytest.raises(CvxidError, match=r"\[data.train\] .*hold is true, false or a list of the inputs"):
         cvxid.load_problem(held_records / "bad.toml").experiment("train")
     (held_records / "named.toml").write_text(SPEC.format(hold='hold = ["f"]'))
     assert cvxid.load_problem(held_records / "named.toml").experiment("train").held == ("f",)
@@ -126,3 +126,24 @@ def test_init_offers_hold_for_a_held_input_only(held_records, tmp_path):
     np.savetxt(tmp_path / "smooth.csv", rows, delimiter=",", header="t,x,f", comments="")
     assert main(["init", str(tmp_path / "smooth.csv"), "-o", str(tmp_path / "smooth.toml")]) == 0
     assert "hold" not in (tmp_path / "smooth.toml").read_text()
+
+
+def test_a_held_input_given_from_python_and_beside_a_simulation(held_records):
+    """The spec's hold applies to a DataFrame given from Python (with_data), and a hold
+    beside a simulated record is refused (a stranger's review: both were ignored)."""
+    import pandas as pd
+
+    (held_records / "spec.toml").write_text(SPEC.format(hold="hold = true"))
+    spec = cvxid.load_problem(held_records / "spec.toml")
+    frame = pd.read_csv(held_records / "train.csv")
+    import warnings
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # (no "looks held" warning: the spec says so)
+        assert spec.with_data(frame, frame).experiment("train").held == ("f",)
+    assert Experiment(np.arange(50) * DT, {"x": np.zeros(50)}, {"force": np.ones(50)}, held="force").held == ("force",)
+    simulated = cvxid.load_problem("hidden_friction")
+    bad = held_records / "simulated.toml"
+    bad.write_text((simulated.folder / "hidden_friction.toml").read_text().replace(
+        "[data.train.simulate]", "[data.train]\nhold = true\n\n[data.train.simulate]"))
+    with pytest.raises(CvxidError, match=r"\[data.train\] hold says how a measured input was held.*remove it"):
+        cvxid.load_problem(bad)

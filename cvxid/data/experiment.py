@@ -17,7 +17,7 @@ from typing import Mapping, Sequence
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-from cvxid.data.hold import jumps, looks_held
+from cvxid.data.hold import HELD_CHECKED, looks_held
 from cvxid.data.sensor import checked
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import noise_level
@@ -87,18 +87,17 @@ least squares, 1e-310 is subnormal): the data are rescaled by the user, never si
 
 
 HISTORY_ONLY = 0.01
-"""The least share of an input's excitation energy (above its noise) that must fall after
-the part of a record the fit does not see (:meth:`Experiment.check_signals`): an impact
-hammer's blow at the end of an exact delay's history left a free decay with a zero force
-and an inertia of 1e-9 (an eighth outside check)."""
+"""The least share of an input's energy (above its noise) that must fall after an exact
+delay's measured history (:meth:`Experiment.forced_after`): an impact hammer's blow inside
+it leaves a free motion with no force, whose inertia no fit can tell (an eighth outside
+check's blow at the history's end gave an inertia of 1e-9)."""
 
 
-def _energy(part: np.ndarray, whole: np.ndarray) -> float:
-    """The squared deviations of ``part`` from ``whole``'s median, less what its white noise
-    (:func:`~cvxid.metrics.noise_level` of ``whole``) accounts for; at least 0."""
-    finite = part[np.isfinite(part)]
-    level = noise_level(whole[np.isfinite(whole)])
-    return max(float(np.sum((finite - np.nanmedian(whole)) ** 2)) - finite.size * level**2, 0.0)
+def _energy(u: np.ndarray, level: float) -> float:
+    """:math:`\\sum u_k^2` over the finite samples, less what white noise of ``level``
+    accounts for; at least 0."""
+    finite = u[np.isfinite(u)]
+    return max(float(np.sum(finite**2)) - finite.size * level**2, 0.0)
 
 
 @dataclass(frozen=True)
@@ -134,7 +133,7 @@ class Experiment:
 
     def __post_init__(self) -> None:
         t = _as_signal("time", self.time, self.name)
-        object.__setattr__(self, "held", tuple(self.held))
+        object.__setattr__(self, "held", (self.held,) if isinstance(self.held, str) else tuple(self.held))
         unknown = [h for h in self.held if h not in self.inputs]
         if unknown:
             raise CvxidError(f"experiment '{self.name}': held names input(s) {', '.join(map(repr, unknown))} it does "
@@ -239,31 +238,32 @@ class Experiment:
             return self.inputs[name]
         return CubicSpline(self.time, self.inputs[name])(np.maximum(self.time - delay, self.time[0]))
 
-    def check_signals(self, inputs, outputs, unseen: float = 0.0, why: str = "") -> None:
+    def check_signals(self, inputs, outputs) -> None:
         """Refuse a record whose input is constant (nothing excites the system: a free decay
-        too) or whose output is constant (no motion to identify), and one whose input moves
-        only in its first ``unseen`` seconds, which the fit does not see (``why``: what they
-        are): less than :data:`HISTORY_ONLY` of its excitation energy above the noise after
-        them."""
+        too) or whose output is constant (no motion to identify)."""
         def constant(v):  # (NaN samples, gaps, do not count)
             return np.all(np.isnan(v)) or np.nanmax(v) == np.nanmin(v)
 
-        first = int(np.searchsorted(self.time, self.time[0] + unseen - 1e-9 * self.dt))
         for name in inputs:
-            u = self.input(name)
-            if constant(u):
+            if constant(self.input(name)):
                 raise CvxidError(f"experiment '{self.name}': input '{name}' is constant, so it does not excite the "
                                  "system; identification needs a varying input")
-            if 0 < first < u.size and _energy(u[first:], u) < HISTORY_ONLY * _energy(u, u):
-                raise CvxidError(
-                    f"experiment '{self.name}': input '{name}' moves only in the record's first {unseen:.3g} s "
-                    f"({why}), which the fit does not see: after them the record is a free motion that nothing "
-                    "excites; start the record earlier before the excitation (a longer pre-trigger), or lower "
-                    "[model.delay] tau_max")
         for name in outputs:
             if constant(self.output(name)):
                 raise CvxidError(f"experiment '{self.name}': output '{name}' is constant, so the record holds no "
                                  "motion to identify; check that the spec's [data] output names the measured position")
+
+    def forced_after(self, name: str, seconds: float) -> bool:
+        r"""Whether the input ``name`` acts after the record's first ``seconds``: its energy
+        :math:`\sum u_k^2` there, less what its white noise accounts for, is at least
+        :data:`HISTORY_ONLY` of the whole record's.  An exact delay reads those seconds as
+        the measured history, and no row and no simulation fits them."""
+        u = self.inputs[name.lstrip("-").strip()] if name not in self.inputs else self.inputs[name]
+        first = int(np.searchsorted(self.time, self.time[0] + seconds - 1e-9 * self.dt))
+        if not 0 < first < u.size:
+            return True
+        level = noise_level(u[np.isfinite(u)])
+        return _energy(u[first:], level) >= HISTORY_ONLY * _energy(u, level)
 
     def slice(self, a: int, b: int, name: str | None = None) -> "Experiment":
         """Samples ``a`` (included) to ``b`` (excluded)."""
@@ -708,14 +708,14 @@ def _held(hold, inputs: Mapping[str, np.ndarray], name: str) -> tuple[str, ...]:
     that looks held (:func:`~cvxid.data.hold.looks_held`)."""
     if hold is None:
         for k, u in inputs.items():
-            if looks_held(u):
+            if looks_held(u[:HELD_CHECKED]):
                 warnings.warn(
-                    f"experiment '{name}': input '{k}' is level between {jumps(u).size} single-sample jumps, as a "
+                    f"experiment '{name}': input '{k}' is level between single-sample jumps, as a "
                     "command held between samples is (a controller's, a DAQ's); cvxid reads "
                     "it as a smooth signal, which puts each jump half a sample early and can move a fed-back delay "
                     "by several %: if the plant received it held, say so ([data.*] hold = true; "
                     "cvxid.load(..., hold=True)); hold = false reads it as smooth without this warning",
-                    CvxidWarning, stacklevel=3)
+                    CvxidWarning, stacklevel=4)
         return ()
     if isinstance(hold, bool):
         return tuple(inputs) if hold else ()

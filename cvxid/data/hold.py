@@ -13,8 +13,10 @@ that smooth signal half a sample late,
     \frac{\sinh(s\,\Delta t/2)}{s\,\Delta t/2} \approx e^{-s\,\Delta t/2}
     \qquad (|s|\,\Delta t \ll 1),
 
-so an input declared held (``[data.*] hold``) is read :math:`\Delta t/2` later, in the
-regression, every simulation and the output-error polish alike.  Read smooth, a held step
+so an input declared held (``[data.*] hold``) is read :math:`\Delta t/2` later (straight
+between its samples, :meth:`~cvxid.data.experiment.Experiment.input`), in the regression,
+every simulation and the output-error polish alike (the simulations then read those
+samples as any input's).  Read smooth, a held step
 input moved a fed-back delay of 0.15 s by 5–10 % at 1 kHz with intervals that missed it (an
 eighth outside check); a half-sample input delay gave covering intervals.
 
@@ -28,13 +30,21 @@ from __future__ import annotations
 
 import numpy as np
 
-from cvxid.metrics import noise_level
+from cvxid.metrics import noise_level, quantisation_step
 
 JUMP_NOISE = 8.0
 """A sample-to-sample change is a jump when it exceeds this many noise levels (times
 :math:`\\sqrt 2`, the noise of a difference) ..."""
 JUMP_ISOLATION = 4.0
-"""... and this many times each of its neighbours (a smooth signal's changes vary slowly)."""
+"""... and this many times each of its neighbours (a smooth signal's changes vary slowly) ..."""
+JUMP_ROUNDING = 1.5
+"""... and, in a record rounded to a step (:func:`~cvxid.metrics.quantisation_step`) below
+:data:`ROUNDING` of its range, this many steps: a slow smooth input recorded at 8 bits
+changes by one step at a time, level between, and is no held command."""
+ROUNDING = 0.05
+HELD_CHECKED = 2**20
+"""Samples of a record's start that a load checks for a held input (a hold shows in any
+stretch; a record of 10^7 samples is not read twice more for it)."""
 LEVEL_NOISE = 2.0
 """An input looks held when, between its jumps, it stays within this many noise levels
 (RMS) of each stretch's mean."""
@@ -47,7 +57,10 @@ def jumps(u: np.ndarray) -> np.ndarray:
     v = np.asarray(u, float)
     d = np.abs(np.diff(v))
     neighbour = np.maximum(np.r_[0.0, d[:-1]], np.r_[d[1:], 0.0])
-    return np.flatnonzero((d > JUMP_NOISE * np.sqrt(2.0) * _noise(v)) & (d > JUMP_ISOLATION * neighbour))
+    step = quantisation_step(v)
+    rounding = step if step < ROUNDING * np.ptp(v) else 0.0  # (a PRBS's one level change is no rounding)
+    floor = max(JUMP_NOISE * np.sqrt(2.0) * _noise(v), JUMP_ROUNDING * rounding)
+    return np.flatnonzero((d > floor) & (d > JUMP_ISOLATION * neighbour))
 
 
 def _noise(v: np.ndarray) -> float:

@@ -273,8 +273,9 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     error refitted at ``grid`` delays across ``[tau_min, tau_max]`` (each fit warm-started
     from its neighbour, on a simulation step of about ``coarse_step``) and on a finer grid
     around the best; then every parameter from the best delay, refined at the sample step
-    with ``final_iterations`` more (unless ``final`` is false).  ``grid = 0`` fits from the
-    estimated delay only.  ``initial``: each experiment's starting states (see
+    with ``final_iterations`` more (unless ``final`` is false), and again from a profile
+    point that the profile's refined edges find to fit better (:data:`RESTARTS`).
+    ``grid = 0`` fits from the estimated delay only.  ``initial``: each experiment's starting states (see
     :func:`output_error`)."""
     start = time.perf_counter()
     system, given = IdentifiedSystem.of(fitted), initial
@@ -797,7 +798,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
     read = {m.spec.input_column for m in problem.base.models.values()}
     levels = []
     for e in experiments:
-        each = {name: measurement_noise(e.input(name)) for name in read & set(e.inputs)}
+        each = {name: measurement_noise(e.inputs[name]) for name in read & set(e.inputs)}  # (as sampled: a held one too)
         levels.append({n: v for n, v in each.items() if v > 0})
     if not any(levels):
         return None

@@ -132,12 +132,6 @@ def usable_segments(experiments: list[Experiment], shortest: float, runs=Experim
     return out or [s for e in experiments for s in runs(e)]
 
 
-UNSEEN_WINDOW = 0.25
-"""The share of a window at a segment's start whose samples the rows barely see (the
-algebraic operation's kernels vanish at a window's start like a power of the time into it):
-an input that moves only there does not excite the fit."""
-
-
 class RegressionBuilder:
     """Regressions of one equation's data, for ``model`` and any model that differs from it
     only in its library (the coordinate, input, inertia, delay and algebraic orders fix the
@@ -179,16 +173,19 @@ class RegressionBuilder:
                     f"(dt = {e.dt:g} s): no delay can be resolved; raise tau_max, or check the time column's units "
                     "(seconds)"
                 )
-            lead = UNSEEN_WINDOW * self.window.seconds if self.window is not None else 0.0
-            e.check_signals([model.input], model.coordinates, self.start + lead,
-                            f"tau_max = {self.start:g} s of measured history for the exact delay, then the first "
-                            f"{lead:.3g} s of a window, where the algebraic operation's weights vanish"
-                            if self.start else f"the first {lead:.3g} s of a window, where the algebraic operation's "
-                            "weights vanish")
+            e.check_signals([model.input], model.coordinates)
             self._states.append({c: e.output(c) for c in model.coordinates})
             self._splines.append(CubicSpline(e.time, e.output(model.delay.coordinate)) if exact else None)
             first = int(np.searchsorted(e.time, e.time[0] + self.start - 1e-9 * e.dt))  # the delayed signal is measured
             self.blocks.append(_Block(_transform(e.time[first:], orders, self.window), first, i))
+
+        if exact and not any(e.forced_after(model.input, self.start) for e in self.experiments):
+            raise CvxidError(
+                f"input '{model.input}' acts only in the first tau_max = {self.start:g} s of "
+                f"{'the record' if len(self.experiments) == 1 else 'each gap-free stretch of the records'}, which the "
+                "exact delay reads as the measured history and no fit sees: after them the motion is free, with no "
+                "force to scale the inertia by; start the record earlier before the excitation (a longer "
+                "pre-trigger), or lower [model.delay] tau_max")
 
     @property
     def delay(self):

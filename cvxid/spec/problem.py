@@ -274,7 +274,8 @@ class ProblemSpec:
             columns = ["t", *self.coordinates, *inputs, *velocities.values()]
             try:
                 record = from_frame(record, time="t", outputs=list(self.coordinates), inputs=inputs,
-                                    velocities=velocities or None, name=which)
+                                    velocities=velocities or None, name=which,
+                                    hold=(self.data.get(which) or {}).get("hold"))
             except CvxidError as exc:
                 said = str(exc).removeprefix("DataFrame: ")
                 fix = (f"name its columns as the spec does ({', '.join(columns)})" if "no column named" in said else
@@ -334,7 +335,7 @@ class ProblemSpec:
             samples=table.get("samples"),
             fraction=table.get("fraction"),
             time_unit=_string(table, "time_unit", where, "s"),
-            hold=_hold(table, where, inputs),
+            hold=table.get("hold"),
         )
 
     def __repr__(self) -> str:
@@ -352,18 +353,6 @@ class ProblemSpec:
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 VELOCITIES = ESTIMATORS + ("measured", "auto")
 """``[fit] velocity`` values that are not a measured column's name."""
-
-
-def _hold(table: Table, where: str, inputs: list[str]):
-    """``[data.*] hold``: true, false, or a list of the model's inputs held between samples
-    (absent: None, a warning for an input that looks held)."""
-    hold = table.get("hold")
-    if hold is None or isinstance(hold, bool):
-        return hold
-    if isinstance(hold, list) and all(isinstance(h, str) and h in inputs for h in hold):
-        return hold
-    raise CvxidError(f"spec: [{where}] hold is true, false or a list of the inputs held between samples (of "
-                     f"{', '.join(inputs)}), got {hold!r}")
 
 
 def _unknown_velocity(velocity: str, why: str) -> CvxidError:
@@ -512,6 +501,9 @@ def data_sections(raw: Table, required: bool = True) -> dict[str, dict]:
             if "simulate" in table:
                 raise CvxidError(f"spec: [data.{which}] faults is for measured data (a file); a simulation has none")
             _string(table, "faults", f"data.{which}", choices=FAULT_HANDLING)
+        if "hold" in table and "simulate" in table:
+            raise CvxidError(f"spec: [data.{which}] hold says how a measured input was held between its samples; a "
+                             "simulation's input is a function of time: remove it")
     if "diagnose" in raw and "test" not in data and required:  # (else with_data checks it)
         raise CvxidError("spec: [diagnose] compares the models on a test record: add [data.test] (another file, or "
                          "the training file with fraction = [0.8, 1] and fraction = [0, 0.8] in [data.train]), or "
