@@ -45,6 +45,8 @@ def test_a_held_input_is_read_half_a_sample_late():
     assert held.slice(10, 90).held == ("f",)
     with pytest.raises(CvxidError, match="held names input\\(s\\) 'u' it does not have"):
         Experiment(t, {"x": x}, {"f": step}, held=("u",))
+    with pytest.raises(CvxidError, match="held names the inputs held between samples"):
+        Experiment(t, {"x": x}, {"f": step}, held=True)
 
 
 SPEC = """

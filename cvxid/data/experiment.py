@@ -133,17 +133,21 @@ class Experiment:
 
     def __post_init__(self) -> None:
         t = _as_signal("time", self.time, self.name)
-        object.__setattr__(self, "held", (self.held,) if isinstance(self.held, str) else tuple(self.held))
-        unknown = [h for h in self.held if h not in self.inputs]
-        if unknown:
-            raise CvxidError(f"experiment '{self.name}': held names input(s) {', '.join(map(repr, unknown))} it does "
-                             f"not have (it has {sorted(self.inputs)})")
         for group, example in (("outputs", '{"x": x}'), ("inputs", '{"f": f}'), ("velocities", '{"x": v}')):
             if not isinstance(getattr(self, group), Mapping):
                 raise CvxidError(f"experiment '{self.name}': {group} must map names to arrays ({example}), got "
                                  f"{type(getattr(self, group)).__name__}")
         if not self.outputs:
             raise CvxidError(f"experiment '{self.name}': no output given; name at least one")
+        held = (self.held,) if isinstance(self.held, str) else self.held
+        if not isinstance(held, (list, tuple)) or not all(isinstance(h, str) for h in held):
+            raise CvxidError(f"experiment '{self.name}': held names the inputs held between samples (a list of "
+                             f"input names, e.g. [\"f\"]), got {self.held!r}")
+        object.__setattr__(self, "held", tuple(held))
+        unknown = [h for h in self.held if h not in self.inputs]
+        if unknown:
+            raise CvxidError(f"experiment '{self.name}': held names input(s) {', '.join(map(repr, unknown))} it does "
+                             f"not have (it has {sorted(self.inputs)})")
         signals = {}
         for group in ("outputs", "inputs", "velocities"):
             signals[group] = {

@@ -42,6 +42,8 @@ JUMP_ROUNDING = 1.5
 :data:`ROUNDING` of its range, this many steps: a slow smooth input recorded at 8 bits
 changes by one step at a time, level between, and is no held command."""
 ROUNDING = 0.05
+"""The largest rounding step, as a share of the record's range, read as rounding (a PRBS's
+or a held step's own level change reads as a "step" as large as its range)."""
 HELD_CHECKED = 2**20
 """Samples of a record's start that a load checks for a held input (a hold shows in any
 stretch; a record of 10^7 samples is not read twice more for it)."""

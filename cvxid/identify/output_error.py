@@ -275,8 +275,8 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     around the best; then every parameter from the best delay, refined at the sample step
     with ``final_iterations`` more (unless ``final`` is false), and again from a profile
     point that the profile's refined edges find to fit better (:data:`RESTARTS`).
-    ``grid = 0`` fits from the estimated delay only.  ``initial``: each experiment's starting states (see
-    :func:`output_error`)."""
+    ``grid = 0`` fits from the estimated delay only.  ``initial``: each experiment's
+    starting states (see :func:`output_error`)."""
     start = time.perf_counter()
     system, given = IdentifiedSystem.of(fitted), initial
     experiments = _experiments(experiments, _shortest(system))
