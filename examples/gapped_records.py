@@ -22,16 +22,14 @@
 # seeds; the rows in `OUT/gapped_records.csv`).
 
 # %%
-import os
 import tempfile
 import warnings
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from cvxid.app.run import run
-from cvxid.tools.heldout import draw, write
+from cvxid.tools.heldout import delay_errors, draw, example_runs, write
 
 GAPS = {"none": (), "at 5 %": (0.05,), "at 15 %": (0.15,), "at 50 %": (0.5,),
         "every 20 %": (0.1, 0.3, 0.5, 0.7, 0.9)}
@@ -57,14 +55,6 @@ def one(seed: int, effect: str, where: str) -> dict:
             "covers": low <= oscillator.tau <= high, "window s": (result["window"] or {}).get("seconds", np.nan)}
 
 
-first, last = map(int, os.environ.get("SEEDS", "1000:1010").split(":"))
-OUT = os.environ.get("OUT", ".")
-rows = Parallel(n_jobs=2)(delayed(one)(seed, effect, where) for seed in range(first, last)
-                          for effect in ("none", "coulomb") for where in GAPS)
-frame = pd.DataFrame(rows)
-frame.to_csv(os.path.join(OUT, "gapped_records.csv"), index=False)
+frame = example_runs(one, [(effect, where) for effect in ("none", "coulomb") for where in GAPS], "gapped_records")
 by = frame.groupby(["effect", "gaps"], sort=False)
-print(pd.DataFrame({"systems": by.size(),
-                    "median |tau error| %": by["tau error %"].apply(lambda e: e.abs().median()),
-                    "p90 |tau error| %": by["tau error %"].apply(lambda e: e.abs().quantile(0.9)),
-                    "covers": by["covers"].sum(), "median window s": by["window s"].median()}).to_string())
+print(pd.DataFrame({**delay_errors(by), "median window s": by["window s"].median()}).to_string())

@@ -24,18 +24,16 @@
 # the rows in `OUT/held_inputs.csv`).
 
 # %%
-import os
 import re
 import tempfile
 import warnings
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from cvxid.app.run import run
 from cvxid.simulate import simulate
-from cvxid.tools.heldout import DT, draw, write
+from cvxid.tools.heldout import DT, delay_errors, draw, example_runs, write
 
 PRE_ROLL = 2.0
 """Seconds simulated before the record starts (it starts mid-motion)."""
@@ -79,14 +77,5 @@ def one(seed: int, kind: str, hold: bool) -> dict:
             "covers": low <= oscillator.tau <= high}
 
 
-first, last = map(int, os.environ.get("SEEDS", "1000:1010").split(":"))
-OUT = os.environ.get("OUT", ".")
-rows = Parallel(n_jobs=2)(delayed(one)(seed, kind, hold) for seed in range(first, last)
-                          for kind in ("steps", "prbs") for hold in (False, True))
-frame = pd.DataFrame(rows)
-frame.to_csv(os.path.join(OUT, "held_inputs.csv"), index=False)
-by = frame.groupby(["input", "read"], sort=False)
-print(pd.DataFrame({"systems": by.size(),
-                    "median |tau error| %": by["tau error %"].apply(lambda e: e.abs().median()),
-                    "p90 |tau error| %": by["tau error %"].apply(lambda e: e.abs().quantile(0.9)),
-                    "covers": by["covers"].sum()}).to_string())
+frame = example_runs(one, [(kind, hold) for kind in ("steps", "prbs") for hold in (False, True)], "held_inputs")
+print(pd.DataFrame(delay_errors(frame.groupby(["input", "read"], sort=False))).to_string())

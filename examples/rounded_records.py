@@ -23,16 +23,14 @@
 # seeds; the rows in `OUT/rounded_records.csv`).
 
 # %%
-import os
 import tempfile
 import warnings
 
 import numpy as np
 import pandas as pd
-from joblib import Parallel, delayed
 
 from cvxid.app.run import run
-from cvxid.tools.heldout import draw, write
+from cvxid.tools.heldout import draw, example_runs, write
 
 SHARES = (0.0, 0.005, 0.01, 0.02, 0.04)
 """The rounding error q/sqrt(12) as a share of the training output's deviation."""
@@ -57,12 +55,7 @@ def one(seed: int, effect: str, share: float) -> dict:
             "warned": any("is rounded to steps of" in w for w in result["warnings"])}
 
 
-first, last = map(int, os.environ.get("SEEDS", "1000:1010").split(":"))
-OUT = os.environ.get("OUT", ".")
-rows = Parallel(n_jobs=2)(delayed(one)(seed, effect, share) for seed in range(first, last)
-                          for effect in ("none", "coulomb") for share in SHARES)
-frame = pd.DataFrame(rows)
-frame.to_csv(os.path.join(OUT, "rounded_records.csv"), index=False)
+frame = example_runs(one, [(effect, share) for effect in ("none", "coulomb") for share in SHARES], "rounded_records")
 by = frame.groupby(["effect", "rounding share %"])
 print(pd.DataFrame({"systems": by.size(), "median test fit %": by["test fit %"].median(),
                     "worst test fit %": by["test fit %"].min(),

@@ -633,6 +633,28 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
     return table.rename_axis(names)
 
 
+def example_runs(one, cases, name: str) -> pd.DataFrame:
+    """The rows of ``one(seed, *case)`` for every seed of the environment's ``SEEDS``
+    (``first:last``, the report seeds 1000:1010 by default) and every case, on 2 workers,
+    written to ``OUT/name.csv`` (``OUT`` from the environment, the working folder by
+    default): the harness of the held-out examples (``examples/gapped_records.py``, ...)."""
+    import os
+
+    first, last = map(int, os.environ.get("SEEDS", "1000:1010").split(":"))
+    rows = Parallel(n_jobs=2)(delayed(one)(seed, *case) for seed in range(first, last) for case in cases)
+    frame = pd.DataFrame(rows)
+    frame.to_csv(os.path.join(os.environ.get("OUT", "."), f"{name}.csv"), index=False)
+    return frame
+
+
+def delay_errors(groups) -> dict[str, pd.Series]:
+    """Per group of rows with ``tau error %`` and ``covers``: the systems, the median and
+    90th percentile of |tau error| % and the intervals that cover the truth."""
+    return {"systems": groups.size(), "median |tau error| %": groups["tau error %"].apply(lambda e: e.abs().median()),
+            "p90 |tau error| %": groups["tau error %"].apply(lambda e: e.abs().quantile(0.9)),
+            "covers": groups["covers"].sum()}
+
+
 def by_duration(frame: pd.DataFrame) -> pd.DataFrame:
     """The same systems at several record lengths (``frame`` of :func:`heldout` runs at each
     length, concatenated) side by side: |tau error| % and worst other % per length, and
