@@ -24,6 +24,7 @@ import pandas as pd
 
 from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
+from cvxid.data.hold import looks_held
 from cvxid.diagnosis.compare import compare_system
 from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine
@@ -542,26 +543,14 @@ def _warn_incomplete(out: RunResult) -> None:
                 "against which state", CvxidWarning, stacklevel=2)
 
 
-JUMP = 0.25
-"""An input jumps when one step between consecutive samples spans this share of its range
-while most steps are tiny (under :data:`STILL` of it): a square wave, steps, a PRBS; a
-smooth input sampled within its band, and broadband noise, are not."""
-STILL = 0.01
-"""The median step between consecutive samples, as a share of the range, under which an
-input holds still between its jumps (:data:`JUMP`).  The test inputs of 100 held-out
-tuning systems (multisines and chirps, noise 0.01 on the input) never read as jumping; a
-square wave does while its input noise (standard deviation) stays under about 1 % of its range."""
-
-
 def _jumping(test) -> str:
-    """What the gap warning adds when the test record's input jumps: where a jump falls
+    """What the gap warning adds when the test record's input jumps between level stretches
+    (:func:`~cvxid.data.hold.looks_held`: a square wave, steps, a PRBS): where a jump falls
     between two samples the record cannot say when, and a true model misses by a few times
     the noise's error (a seventh outside check: the flexible joint's true model, 3.1 times on
     its square-wave test, at the noise on a sine)."""
     for name, u in (test.inputs.items() if test is not None else ()):
-        steps = np.abs(np.diff(u))
-        steps, span = steps[np.isfinite(steps)], np.nanmax(u) - np.nanmin(u)  # (no step across a gap)
-        if steps.size > 2 and steps.max() > JUMP * span > 0 and np.median(steps) < STILL * span:
+        if looks_held(u[np.isfinite(u)]):  # (its gaps' samples left out)
             return (f", and an input that jumps ('{name}' on the test record: a square wave or steps), whose jumps "
                     "fall between samples at times the record cannot tell (a true model then misses by a few times "
                     "the noise's error; a smooth test input tells the two apart)")
