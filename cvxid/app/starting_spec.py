@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from cvxid.data.experiment import READERS, TIME_UNITS, first_step_back, first_text, missing_rows, seconds_per
-from cvxid.data.hold import looks_held
+from cvxid.data.hold import HELD_CHECKED, looks_held
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
@@ -228,7 +228,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         reasons.append("missing samples in the output or the input, loaded as gaps")
     gaps = gaps or lost is not None
     return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps,
-                   time_unit or "s", looks_held(numeric[input]))
+                   time_unit or "s", looks_held(numeric[input][:HELD_CHECKED]))
 
 
 def _relative(path: Path, folder: Path) -> str:
