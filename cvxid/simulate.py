@@ -12,29 +12,30 @@ equation's inertia), the terms may read every coordinate, and :math:`q_d^{(r)}` 
 one is a :class:`CoupledSystem`.  Both run through :func:`integrate`.
 
 The method is the classical fixed-step Runge–Kutta method.  An equation's own Coulomb
-friction :math:`F_c\,\operatorname{sign}(\dot q_i)` (:math:`F_c > 0`) is the force that
-would bring the motion to rest within one step, up to its bound,
+friction :math:`F_c\,\operatorname{sign}(\dot q_i)` (:math:`F_c > 0`) is integrated as
+the two regimes it switches between.  While the coordinate slides, a step keeps the
+direction it started with, :math:`-F_c \operatorname{sign}(\dot q_i(t_k))`, and when the
+velocity has crossed zero by the step's end, the step is split at the instant it reached
+zero (found to round-off by regula falsi on the length of the RK4 step, so that the
+instant, and with it the simulation, moves smoothly with the parameters).  From rest the
+friction is the force that would keep the motion at rest within the step, up to its bound,
 
 .. math::
 
     F = \operatorname{clip}\big(R_i + m_i \dot q_i / h,\; -F_c,\; F_c\big),
 
-with :math:`R_i` the equation's other forces: the motion sticks while they stay below
-:math:`F_c`, and slides with :math:`\pm F_c` once the speed is more than a step's friction
-from rest.  The same friction (its direction :math:`F/F_c \in [-1, 1]`) acts on the other
-equations that read it.  The force is continuous in the state and the parameters, so the
-simulation is too: a sign switched inside a step (or Karnopp's band, which balanced the
-forces within :math:`|\dot q_i| \le h F_c/m_i` and jumped at its edge) makes the
-simulation jump as a parameter moves, and an output-error fit then stops wherever its
-finite differences happen to straddle a jump (measured: the delay's median error on
-held-out Coulomb systems 3.1 % → 1.6 %, the 95 % intervals covering 75 % → 95 %;
-docs/benchmarks.md).  A negative coefficient pushes (:math:`F_c\operatorname{sign}`,
-nothing to stick).  With friction the scheme is first order in :math:`h` (the motion comes
-to rest over one step: on `hidden_friction`'s system the error is 3.9e-3 at the sample
-step and halves with each halving, against 1.0e-3 with the band), and a coordinate held by
-its own friction creeps at :math:`O(h)` while another equation's friction pushes on it (the
-clip sees that push only after it).  The delayed state is read from
-a history buffer by cubic Hermite interpolation between stored nodes (position with
+with :math:`R_i` the equation's other forces and :math:`h` the (rest of the) step: the
+motion sticks while they stay below :math:`F_c` and breaks away, continuously, once they
+pass it.  The same friction (its direction, in :math:`[-1, 1]` at rest) acts on the other
+equations that read it.  A stop that a parameter moves across a step's end moves the
+simulation continuously (a split at the end of one step and one at the start of the next
+meet).  The scheme before it applied the clip at every stage and brought the motion to
+rest over one step: first order in :math:`h` (on `hidden_friction`'s system, a largest
+error of 7.9e-4 at the sample step, halving with each halving of the step); the split
+step's is 5e-8 at the sample step, RK4's own (docs/benchmarks.md).  A negative
+coefficient pushes (:math:`F_c\operatorname{sign}`, nothing to stick).
+
+The delayed state is read from a history buffer by cubic Hermite interpolation between stored nodes (position with
 velocity, or velocity with acceleration), which keeps the method fourth-order accurate for
 any :math:`\tau \ge h`; a delay shorter than the sample step is resolved by sub-steps, and
 one shorter than a step acts on the current state.  Before the first sample the feedback
@@ -62,6 +63,7 @@ from typing import Callable
 import numpy as np
 from numba import njit, prange
 from scipy.interpolate import CubicSpline
+from scipy.optimize import brentq
 
 from cvxid.errors import CvxidError
 from cvxid.model.delay import HISTORIES
@@ -89,6 +91,11 @@ and fitted at a quarter step it reaches 0.258 mV)."""
 
 MAX_SUBSTEPS = 16
 """Most integration steps per sample that a short delay may ask for."""
+MAX_EVENTS = 4
+"""Most stops of sliding coordinates located within one step (the rest of a step after the
+last is integrated as it comes)."""
+STOP_ITERATIONS = 60
+"""Most regula falsi iterations to find where a sliding coordinate stops."""
 DIVERGED = 1e8
 
 Force = Callable[[np.ndarray], np.ndarray] | np.ndarray
@@ -279,7 +286,7 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     # every array C-contiguous and writable: one compiled signature (numba types a read-only
     # view apart, and would compile the kernel again for it)
     own = lambda a: np.require(a, float, ["C", "W"])  # noqa: E731  (copies only when needed)
-    args = (own(F), own(mass), own(coefs), own(gain), delayed, derivative, offs, ws, instant, own(fill),
+    args = (own(F), own(mass), own(coefs), own(gain), delayed, derivative, offs, ws, own(tau / h), instant, own(fill),
             own(past_values), own(past_slopes), own(x0), own(v0), h, steps)
     if codes is not None:
         X, V, failed = _kernel(codes, *args)
@@ -333,17 +340,26 @@ def hermite_stages(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     """Where the delayed times :math:`t_k + c h - \\tau` of the RK4 stages
     (:math:`c = 0, 1/2, 1`) fall on the grid: the node offset ``(3, B)`` from step ``k`` and
     the cubic Hermite weights ``(3, 4, B)`` of (value, slope, next value, next slope).  Both
-    are the same for every step, so they are computed once."""
-    offs, ws = [], []
-    for c in (0.0, 0.5, 1.0):
-        u = c - np.asarray(tau, float) / h
-        u = np.where(np.abs(u - np.round(u)) < 1e-9, np.round(u), u)
-        off = np.floor(u).astype(int)
-        theta = u - off
-        t2, t3 = theta * theta, theta**3
-        offs.append(off)
-        ws.append(np.array([2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h]))
-    return np.array(offs), np.array(ws)
+    are the same for every step, so they are computed once (:func:`_hermite`)."""
+    tau = np.atleast_1d(np.asarray(tau, float))
+    offs, ws = np.zeros((3, tau.size), np.int64), np.zeros((3, 4, tau.size))
+    for ci in range(3):
+        for b in range(tau.size):
+            offs[ci, b], ws[ci, 0, b], ws[ci, 1, b], ws[ci, 2, b], ws[ci, 3, b] = _hermite(0.5 * ci - tau[b] / h, h)
+    return offs, ws
+
+
+@njit(cache=True, error_model="numpy")
+def _hermite(u, h):
+    """The node offset and cubic Hermite weights (value, slope, next value, next slope) of
+    the point ``u`` steps of length ``h`` after a node (a point within 1e-9 of a node is
+    on it)."""
+    if abs(u - np.round(u)) < 1e-9:
+        u = np.round(u)
+    off = np.floor(u)
+    theta = u - off
+    t2, t3 = theta * theta, theta**3
+    return int(off), 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h
 
 
 # ---------------------------------------------------------------------- term codes
@@ -396,25 +412,39 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 
 # ---------------------------------------------------------------------- kernels
 @njit(cache=True, error_model="numpy", inline="always")
-def _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps):
-    """:math:`q_d^{(r)}(t_k + c h - \\tau)` from the history buffer (or before t = 0)."""
+def _delayed_value(b, x, v, i, w0, w1, w2, w3, end, d, q, instant, fill, Hy, Hd, X, V, A, steps):
+    """:math:`q_d^{(r)}` at the delayed time that falls ``i`` nodes on with the Hermite
+    weights ``w`` (or before t = 0); ``end``: the stage ends a step."""
     if instant[b]:
         return x[d] if q == 0 else v[d]
-    i = k + offs[ci, b]
-    w0 = ws[ci, 0, b]
     P = Hy.size
     if P > 0 and i < 0:  # the measured past: Hermite between its nodes (node 0 is the start)
         y1, d1 = Hy[P + i + 1] if i + 1 < 0 else 0.0, Hd[P + i + 1] if i + 1 < 0 else 0.0
         if i + 1 == 0:
             y1, d1 = (X[0, d, b], V[0, d, b]) if q == 0 else (V[0, d, b], A[0, d, b])
-        return w0 * Hy[P + i] + ws[ci, 1, b] * Hd[P + i] + ws[ci, 2, b] * y1 + ws[ci, 3, b] * d1
+        return w0 * Hy[P + i] + w1 * Hd[P + i] + w2 * y1 + w3 * d1
     # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
-    if i < 0 or (i == 0 and w0 == 1.0 and ci == 2 and P == 0):
+    if i < 0 or (i == 0 and w0 == 1.0 and end and P == 0):
         return fill[b]
     j = min(i, steps - 1)
     if q == 0:
-        return w0 * X[j, d, b] + ws[ci, 1, b] * V[j, d, b] + ws[ci, 2, b] * X[j + 1, d, b] + ws[ci, 3, b] * V[j + 1, d, b]
-    return w0 * V[j, d, b] + ws[ci, 1, b] * A[j, d, b] + ws[ci, 2, b] * V[j + 1, d, b] + ws[ci, 3, b] * A[j + 1, d, b]
+        return w0 * X[j, d, b] + w1 * V[j, d, b] + w2 * X[j + 1, d, b] + w3 * V[j + 1, d, b]
+    return w0 * V[j, d, b] + w1 * A[j, d, b] + w2 * V[j + 1, d, b] + w3 * A[j + 1, d, b]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _input_at(F, p, e, b):
+    """Equation ``e``'s input ``p`` half-steps from the start: the node's value on a node,
+    else the cubic through the four nearest nodes."""
+    i = int(np.floor(p))
+    if p == i:
+        return F[i, e, b]
+    if F.shape[0] < 4:  # a single step: straight between its nodes
+        return F[i, e, b] + (p - i) * (F[i + 1, e, b] - F[i, e, b])
+    j = min(max(i - 1, 0), F.shape[0] - 4)
+    s = p - j
+    return (-(s - 1) * (s - 2) * (s - 3) / 6 * F[j, e, b] + s * (s - 2) * (s - 3) / 2 * F[j + 1, e, b]
+            - s * (s - 1) * (s - 3) / 2 * F[j + 2, e, b] + s * (s - 1) * (s - 2) / 6 * F[j + 3, e, b])
 
 
 @njit(cache=True, error_model="numpy")
@@ -462,13 +492,14 @@ def _program(ops, args, first, stop, x, v, stack):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _accel(b, s, x, v, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, X, V,
-           A, steps, h, out):
+def _accel(b, x, v, qd, f, terms, stack, sign, modes, mass, coefs, gain, hs, out):
+    """Every equation's acceleration at the state (x, v) with the delayed signal ``qd`` and
+    the inputs ``f``; a coordinate sliding in the direction ``modes`` feels its own
+    friction's bound against it, one at rest (mode 0) the clip over the step ``hs``."""
     eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
     C = x.size
-    qd = _delayed_value(b, x, v, k, ci, d, q, offs, ws, instant, fill, Hy, Hd, X, V, A, steps)
     for e in range(C):
-        out[e] = F[s, e, b] + gain[e, b] * qd
+        out[e] = f[e] + gain[e, b] * qd
     for m in range(eqs.size):
         kind = kinds[m]
         if kind == 1:
@@ -492,8 +523,11 @@ def _accel(b, s, x, v, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, of
     for m in range(eqs.size):
         e = eqs[m]
         if kinds[m] == 1 and tc[m] == e and coefs[m, b] > 0:
-            bound = coefs[m, b]  # the force that would bring the motion to rest within a step, up to the bound
-            sign[e] = min(max(out[e] + mass[e, b] * v[e] / h, -bound), bound) / bound
+            bound = coefs[m, b]
+            if modes[e] != 0.0:
+                sign[e] = modes[e]  # sliding: against the motion the step started with
+            else:  # at rest: the force that keeps it there within the step, up to the bound
+                sign[e] = min(max(out[e] + mass[e, b] * v[e] / hs, -bound), bound) / bound
             out[e] -= bound * sign[e]
         elif kinds[m] == 1 and tc[m] == e:
             out[e] -= coefs[m, b] * sign[e]  # a negative "friction" pushes: no rest to come to
@@ -502,6 +536,50 @@ def _accel(b, s, x, v, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, of
             out[eqs[m]] -= coefs[m, b] * sign[tc[m]]
     for e in range(C):
         out[e] /= mass[e, b]
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps,
+          h):
+    """One RK4 step from the fraction ``frac`` of step ``k`` over ``r`` of a step: (x, v)
+    to (xn, vn), the stages' accelerations in ``a``.  A whole step reads the delayed signal
+    and the inputs at the stages' precomputed nodes; a part of one (a friction's event
+    splits it) interpolates them."""
+    xs, vs, f, sign = work[0], work[1], work[2], work[3]
+    d, q, offs, ws, tau_h, instant, fill, Hy, Hd = delay
+    C = x.size
+    hs = r * h
+    whole = frac == 0.0 and r == 1.0
+    for j in range(4):  # stage j at c = 0, 1/2, 1/2, 1 of the step (one call site: inlined once)
+        ci = (j + 1) // 2
+        c = 0.5 * ci
+        for e in range(C):
+            xs[e] = x[e] + c * hs * vs[e] if j > 0 else x[e]
+            vs[e] = v[e] + c * hs * a[j - 1, e] if j > 0 else v[e]
+        if whole:
+            i, w0, w1, w2, w3 = k + offs[ci, b], ws[ci, 0, b], ws[ci, 1, b], ws[ci, 2, b], ws[ci, 3, b]
+            for e in range(C):
+                f[e] = F[2 * k + ci, e, b]
+        else:
+            i, w0, w1, w2, w3 = _hermite(frac + c * r - tau_h[b], h)
+            i += k
+            for e in range(C):
+                f[e] = _input_at(F, 2 * (k + frac + c * r), e, b)
+        qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q, instant, fill, Hy, Hd, X, V, A, steps)
+        _accel(b, xs, vs, qd, f, terms, stack, sign, modes, mass, coefs, gain, hs, a[j])
+        if j == 0 and frac == 0.0:  # the later stages may read this step's slope of a fed-back velocity
+            A[k, :, b] = a[0]
+    for e in range(C):
+        xn[e] = x[e] + hs / 6 * (6 * v[e] + hs * (a[0, e] + a[1, e] + a[2, e]))
+        vn[e] = v[e] + hs / 6 * (a[0, e] + 2 * a[1, e] + 2 * a[2, e] + a[3, e])
+
+
+@njit(cache=True, error_model="numpy")
+def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps,
+          h):
+    """:func:`_step` called, not inlined: the parts of a step that a friction's stop splits
+    (rare: the whole steps are inlined in the kernel)."""
+    _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps, h)
 
 
 @njit(cache=True)
@@ -515,10 +593,14 @@ def _diverged(x, v) -> bool:
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
+def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h, steps):
     """RK4 with a Hermite history of the delayed coordinate, the variants of the batch in
     parallel threads (compiled; a Jacobian's columns are one batch).  ``terms``: the codes
-    of :func:`_term_codes`."""
+    of :func:`_term_codes`.  A coordinate sliding against its own Coulomb friction stops at
+    the instant its velocity reaches zero: the step is split there (the instant found to
+    round-off), and the rest of it is integrated from rest."""
+    eqs, kinds, tc = terms[0], terms[1], terms[4]
+    delay = (d, q, offs, ws, tau_h, instant, fill, Hy, Hd)
     C, B = x0.shape
     X = np.zeros((steps + 1, C, B))
     V = np.zeros((steps + 1, C, B))
@@ -526,24 +608,42 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, 
     failures = np.full(B, -1)
     for b in prange(B):
         a = np.zeros((4, C))  # the four stages' accelerations
-        x, v, xs, vs, sign = x0[:, b].copy(), v0[:, b].copy(), np.zeros(C), np.zeros(C), np.zeros(C)
+        work = np.zeros((4, C))  # the stages' state, inputs and friction directions
+        x, v, xn, vn, modes, ends = x0[:, b].copy(), v0[:, b].copy(), np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
+        own = np.zeros(C, np.bool_)  # coordinates with their own (positive) Coulomb friction
+        for m in range(eqs.size):
+            if kinds[m] == 1 and tc[m] == eqs[m] and coefs[m, b] > 0:
+                own[eqs[m]] = True
         stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
         X[0, :, b], V[0, :, b] = x, v
         for k in range(steps):  # no allocation inside the loop: the work arrays are reused
-            for j in range(4):  # stage j at t_k + c h, c = 0, 1/2, 1/2, 1 (one call site: inlined once)
-                ci = (j + 1) // 2
-                c = 0.5 * ci
-                for i in range(C):
-                    xs[i] = x[i] + c * h * vs[i] if j > 0 else x[i]
-                    vs[i] = v[i] + c * h * a[j - 1, i] if j > 0 else v[i]
-                _accel(b, 2 * k + ci, xs, vs, k, ci, terms, stack, sign, F, mass, coefs, gain, d, q, offs, ws,
-                       instant, fill, Hy, Hd, X, V, A, steps, h, a[j])
-                if j == 0:  # the later stages may read this step's slope of a fed-back velocity
-                    A[k, :, b] = a[0]
-            for i in range(C):
-                x[i] += h / 6 * (6 * v[i] + h * (a[0, i] + a[1, i] + a[2, i]))
-                v[i] += h / 6 * (a[0, i] + 2 * a[1, i] + 2 * a[2, i] + a[3, i])
-                X[k + 1, i, b], V[k + 1, i, b] = x[i], v[i]
+            frac = 0.0
+            for event in range(MAX_EVENTS + 1):
+                for e in range(C):
+                    modes[e] = (1.0 if v[e] > 0 else (-1.0 if v[e] < 0 else 0.0)) if own[e] else 0.0
+                r = 1.0 - frac
+                _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+                      steps, h)
+                who, first = -1, 2.0
+                for e in range(C):  # each coordinate's velocity along its sliding direction at the step's end
+                    ends[e] = modes[e] * vn[e]
+                for e in range(C):  # the earliest stop of a sliding coordinate within the step
+                    if event < MAX_EVENTS and modes[e] != 0.0 and ends[e] <= 0.0:
+                        theta = _stop(e, modes[e] * v[e], ends[e], b, k, frac, r, x, v, xn, vn, a, work, modes,
+                                      terms, stack, F, mass, coefs, gain, delay, X, V, A, steps, h)
+                        if theta < first:
+                            who, first = e, theta
+                if who < 0:
+                    x[:], v[:] = xn, vn
+                    break
+                _part(b, k, frac, first * r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay,
+                      X, V, A, steps, h)
+                x[:], v[:] = xn, vn
+                v[who] = 0.0
+                frac += first * r
+                if first == 1.0 or frac >= 1.0 - 1e-12:
+                    break
+            X[k + 1, :, b], V[k + 1, :, b] = x, v
             if _diverged(x, v):
                 failures[b] = k + 1
                 break
@@ -554,20 +654,60 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, 
     return X, V, failed
 
 
-def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, instant, fill, Hy, Hd, x0, v0, h, steps):
+@njit(cache=True, error_model="numpy")
+def _stop(e, g0, g1, b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+          steps, h):
+    """The share :math:`\\theta` of the step ``r`` at which coordinate ``e``'s velocity,
+    sliding at the step's start (``g0`` > 0 in its direction) and past rest at its end
+    (``g1`` <= 0), reaches zero: the Illinois variant of regula falsi on the RK4 step of
+    length :math:`\\theta r`, to round-off (so the split moves smoothly with the
+    parameters)."""
+    lo, glo, hi, ghi = 0.0, g0, 1.0, g1
+    side, theta = 0, 1.0
+    scale = g0 - g1
+    for _ in range(STOP_ITERATIONS):
+        if ghi == 0.0:
+            return hi
+        theta = (lo * ghi - hi * glo) / (ghi - glo)
+        _part(b, k, frac, theta * r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+              steps, h)
+        g = modes[e] * vn[e]
+        if abs(g) <= 1e-14 * scale or hi - lo <= 1e-14:
+            return theta
+        if g < 0:
+            hi, ghi = theta, g
+            if side == -1:
+                glo *= 0.5
+            side = -1
+        else:
+            lo, glo = theta, g
+            if side == 1:
+                ghi *= 0.5
+            side = 1
+    return theta
+
+
+def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h,
+                   steps):
     """The same scheme in Python, vectorised over the batch, for terms the compiled kernel
-    does not know (a user's own :class:`~cvxid.model.terms.Term`)."""
+    does not know (a user's own :class:`~cvxid.model.terms.Term`); a step that a sliding
+    coordinate's stop splits runs member by member, the stop found by
+    :func:`scipy.optimize.brentq`."""
     C, B = x0.shape
     X = np.zeros((steps + 1, C, B))
     V = np.zeros((steps + 1, C, B))
     A = np.zeros((steps + 1, C, B))
-    cols = np.arange(B)
     rows = np.cumsum([0] + [len(t) for t in terms])
+    coulomb = [(e, coordinates.index(term.coordinate), rows[e] + m) for e, eq_terms in enumerate(terms)
+               for m, term in enumerate(eq_terms)
+               if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates]
+    own = np.zeros((C, B), bool)  # coordinates with their own (positive) Coulomb friction
+    for e, j, row in coulomb:
+        own[e] |= (j == e) & (coefs[row] > 0)
     y_hist, d_hist = (X, V) if q == 0 else (V, A)
-
     P = Hy.size
 
-    def node(j):  # node j of the fed-back signal: the measured past before the start (j < 0)
+    def node(j, cols):  # node j of the fed-back signal: the measured past before the start (j < 0)
         inside = np.clip(j, 0, steps)
         if P == 0:
             return y_hist[inside, d, cols], d_hist[inside, d, cols]
@@ -575,52 +715,84 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, ins
         return (np.where(j < 0, Hy[before], y_hist[inside, d, cols]),
                 np.where(j < 0, Hd[before], d_hist[inside, d, cols]))
 
-    def delayed(x, v, k, ci):
-        w0, w1, w2, w3 = ws[ci]
-        i = k + offs[ci]
-        early = (i < 0) | ((i == 0) & (w0 == 1.0) & (ci == 2)) if P == 0 else np.zeros(B, bool)
+    def delayed(x, v, i, w, end, cols):
+        early = (i < 0) | ((i == 0) & (w[0] == 1.0) & end) if P == 0 else np.zeros(cols.size, bool)
         j = np.clip(i, -P, steps - 1)
-        (y0, d0), (y1, d1) = node(j), node(j + 1)
-        out = w0 * y0 + w1 * d0 + w2 * y1 + w3 * d1
-        return np.where(instant, x[d] if q == 0 else v[d], np.where(early, fill, out))
+        (y0, d0), (y1, d1) = node(j, cols), node(j + 1, cols)
+        out = w[0] * y0 + w[1] * d0 + w[2] * y1 + w[3] * d1
+        return np.where(instant[cols], x[d] if q == 0 else v[d], np.where(early, fill[cols], out))
 
-    def accel(s, x, v, k, ci):
-        qd = delayed(x, v, k, ci)
+    def accel(x, v, qd, f, modes, hs, cols):
         states = {c: x[j] for j, c in enumerate(coordinates)}
         states.update({velocity_symbol(c): v[j] for j, c in enumerate(coordinates)})
-        out = F[s] + gain * qd[None, :]
-        coulomb = []  # Coulomb friction acts last: an equation's own may stick
-        for e, eq_terms in enumerate(terms):
+        out = f + gain[:, cols] * qd[None, :]
+        for e, eq_terms in enumerate(terms):  # Coulomb friction acts last: an equation's own may stick
             for m, term in enumerate(eq_terms):
-                if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates:
-                    coulomb.append((e, coordinates.index(term.coordinate), coefs[rows[e] + m]))
-                else:
-                    out[e] -= coefs[rows[e] + m] * term.evaluate(states)
+                if not (isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates):
+                    out[e] -= coefs[rows[e] + m, cols] * term.evaluate(states)
         sign = np.sign(v)
-        for e, j, c in coulomb:
+        for e, j, row in coulomb:
+            c = coefs[row, cols]
             if j == e:
-                bound = np.maximum(c, 0.0)
-                resting = np.clip(out[e] + mass[e] * v[e] / h, -bound, bound) / np.where(c > 0, c, 1.0)
-                sign[e] = np.where(c > 0, resting, sign[e])
+                resting = np.clip(out[e] + mass[e, cols] * v[e] / hs, -np.maximum(c, 0.0), np.maximum(c, 0.0))
+                sign[e] = np.where(c > 0, np.where(modes[e] != 0, modes[e], resting / np.where(c > 0, c, 1.0)),
+                                   sign[e])
                 out[e] -= c * sign[e]
-        for e, j, c in coulomb:
+        for e, j, row in coulomb:
             if j != e:
-                out[e] -= c * sign[j]
-        return out / mass
+                out[e] -= coefs[row, cols] * sign[j]
+        return out / mass[:, cols]
+
+    def step(x, v, k, frac, r, modes, cols):
+        if r == 0.0:
+            return x, v
+        hs = r * h
+        a, xs, vs = [], x, v
+        for j, c in enumerate((0.0, 0.5, 0.5, 1.0)):
+            ci = (j + 1) // 2
+            if j:
+                xs, vs = x + c * hs * vs, v + c * hs * a[-1]
+            if frac == 0.0 and r == 1.0:
+                i, w, f = k + offs[ci, cols], ws[ci][:, cols], F[2 * k + ci][:, cols]
+            else:
+                nodes = np.array([_hermite(frac + c * r - tau_h[b], h) for b in cols]).T
+                i, w = k + nodes[0].astype(int), nodes[1:]
+                f = np.array([[_input_at(F, 2 * (k + frac + c * r), e, b) for b in cols] for e in range(C)])
+            a.append(accel(xs, vs, delayed(xs, vs, i, w, ci == 2, cols), f, modes, hs, cols))
+            if j == 0 and frac == 0.0:
+                A[k][:, cols] = a[0]
+        return x + hs / 6 * (6 * v + hs * (a[0] + a[1] + a[2])), v + hs / 6 * (a[0] + 2 * a[1] + 2 * a[2] + a[3])
+
+    def modes_at(v, cols):
+        return np.where(own[:, cols], np.sign(v), 0.0)
+
+    def split(x, v, k, b):  # one member's step, split where its sliding coordinates stop
+        cols, frac = np.array([b]), 0.0
+        for event in range(MAX_EVENTS + 1):
+            modes, r = modes_at(v, cols), 1.0 - frac
+            xn, vn = step(x, v, k, frac, r, modes, cols)
+            stops = [(brentq(lambda theta: modes[e, 0] * step(x, v, k, frac, theta * r, modes, cols)[1][e, 0], 0.0,
+                             1.0, xtol=1e-14), e)
+                     for e in range(C) if event < MAX_EVENTS and modes[e, 0] != 0 and vn[e, 0] * modes[e, 0] <= 0]
+            if not stops:
+                return xn, vn
+            first, who = min(stops)
+            x, v = step(x, v, k, frac, first * r, modes, cols)
+            v[who] = 0.0
+            frac += first * r
+            if first == 1.0 or frac >= 1.0 - 1e-12:
+                return x, v
+        return x, v
 
     x, v = x0.copy(), v0.copy()
+    everyone = np.arange(B)
     X[0], V[0] = x, v
     for k in range(steps):
-        a1 = accel(2 * k, x, v, k, 0)
-        A[k] = a1
-        x2, v2 = x + 0.5 * h * v, v + 0.5 * h * a1
-        a2 = accel(2 * k + 1, x2, v2, k, 1)
-        x3, v3 = x + 0.5 * h * v2, v + 0.5 * h * a2
-        a3 = accel(2 * k + 1, x3, v3, k, 1)
-        x4, v4 = x + h * v3, v + h * a3
-        a4 = accel(2 * k + 2, x4, v4, k, 2)
-        x = x + h / 6 * (v + 2 * v2 + 2 * v3 + v4)
-        v = v + h / 6 * (a1 + 2 * a2 + 2 * a3 + a4)
+        modes = modes_at(v, everyone)
+        xn, vn = step(x, v, k, 0.0, 1.0, modes, everyone)
+        for b in np.flatnonzero(np.any((modes != 0) & (vn * modes <= 0), axis=0)):
+            xn[:, [b]], vn[:, [b]] = split(x[:, [b]], v[:, [b]], k, b)
+        x, v = xn, vn
         X[k + 1], V[k + 1] = x, v
         if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
             return X, V, k + 1

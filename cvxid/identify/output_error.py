@@ -68,6 +68,9 @@ from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integ
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
+AT_BOUND = 1e-6
+"""How near its bound, as a share of its natural size (:data:`STEP_FLOOR`), a parameter
+is held there (:func:`linearisation`)."""
 GRADIENT_TOLERANCE = 1e-8
 """The solver's gradient test (scipy's ``gtol``, absolute: in the squared units of the
 residual) on residuals divided by the power of two nearest the outputs' spread: in
@@ -829,9 +832,25 @@ def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initi
                   step: float | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The simulation residual at ``fitted``'s own parameters and its forward-difference
     Jacobian, with the parameters' names (as :func:`output_error` names them): one batch
-    of simulations.  ``step``: the simulation step (the sample step by default)."""
+    of simulations.  ``step``: the simulation step (the sample step by default).
+
+    A parameter held at a bound that the simulation error presses against (its gradient
+    :math:`J^T r` points out of the bounds: the fit would move it past) is left out, name
+    and column: it is not free, and a score test that projected a new column on it would
+    credit it with moving where it cannot (an outside check's delay held at ``tau_min``
+    absorbed most of a late input's column and hid it)."""
     problem = _problem_at(fitted, experiments, initial, step)
-    return (problem.names, *_linearise(problem))
+    r, J = _linearise(problem)
+    free = ~_pressed(problem, r, J)
+    return [n for n, f in zip(problem.names, free) if f], r, J[:, free]
+
+
+def _pressed(problem: "_Problem", r: np.ndarray, J: np.ndarray) -> np.ndarray:
+    """Which parameters sit at a bound (within :data:`AT_BOUND` of their natural size) that
+    the simulation error's gradient :math:`J^T r` presses them against."""
+    lower, upper = problem.bounds
+    theta, gradient, near = problem.start, J.T @ r, AT_BOUND * problem.natural
+    return ((theta <= lower + near) & (gradient > 0)) | ((theta >= upper - near) & (gradient < 0))
 
 
 def _linearise(problem: "_Problem") -> tuple[np.ndarray, np.ndarray]:
