@@ -25,19 +25,27 @@ friction is the force that would keep the motion at rest within the step, up to 
     F = \operatorname{clip}\big(R_i + m_i \dot q_i / h,\; -F_c,\; F_c\big),
 
 with :math:`R_i` the equation's other forces and :math:`h` the (rest of the) step: the
-motion sticks while they stay below :math:`F_c` and breaks away, continuously, once they
-pass it.  The same friction (its direction, in :math:`[-1, 1]` at rest) acts on the other
-equations that read it.  A stop that a parameter moves across a step's end moves the
-simulation continuously (a split at the end of one step and one at the start of the next
-meet).  The scheme before it applied the clip at every stage and brought the motion to
-rest over one step: first order in :math:`h` (on `hidden_friction`'s system, a largest
-error of 7.9e-4 at the sample step, halving with each halving of the step); the split
-step's is 5e-8 at the sample step, RK4's own (docs/benchmarks.md).  A negative
-coefficient pushes (:math:`F_c\operatorname{sign}`, nothing to stick).
+motion stays exactly at rest while they stay below :math:`F_c` and breaks away,
+continuously, once they pass it.  The same friction acts on the other equations that read
+it (its direction, in :math:`[-1, 1]` at rest); such a push on an equation is added before
+that equation's own clip when its direction is known (the pushing coordinate slides, or has
+no friction of its own), so a coordinate held by its own friction does not creep under it
+(two coordinates at rest pushing each other still can, by :math:`O(h)`).  A stop that a
+parameter moves across a step's end moves the simulation continuously (a split at the end
+of one step and one at the start of the next meet); a velocity that dips through zero and
+recovers within one step is not seen (a jump of the simulation :math:`O(h^2)` in size, rare),
+and where a fed-back signal jumps (an assumed history) a velocity that jumps across zero is
+split there without being stopped.  The scheme before it applied the clip at every stage and
+brought the motion to rest over one step: first order in :math:`h` (on `hidden_friction`'s
+system a largest error of 7.9e-4 at the sample step, halving with each halving of the step);
+the split step is about second order (the break-away is not located, and the history's
+Hermite interpolation does not see the velocity's kinks): 5e-8 at the sample step, 1.2e-8
+at half of it (docs/benchmarks.md).  A negative coefficient pushes
+(:math:`F_c\operatorname{sign}`, nothing to stick).
 
-The delayed state is read from a history buffer by cubic Hermite interpolation between stored nodes (position with
-velocity, or velocity with acceleration), which keeps the method fourth-order accurate for
-any :math:`\tau \ge h`; a delay shorter than the sample step is resolved by sub-steps, and
+The delayed state is read from a history buffer by cubic Hermite interpolation between
+stored nodes (position with velocity, or velocity with acceleration), which keeps the method
+fourth-order accurate for any :math:`\tau \ge h`; a delay shorter than the sample step is resolved by sub-steps, and
 one shorter than a step acts on the current state.  Before the first sample the feedback
 reads
 
@@ -63,7 +71,6 @@ from typing import Callable
 import numpy as np
 from numba import njit, prange
 from scipy.interpolate import CubicSpline
-from scipy.optimize import brentq
 
 from cvxid.errors import CvxidError
 from cvxid.model.delay import HISTORIES
@@ -91,11 +98,14 @@ and fitted at a quarter step it reaches 0.258 mV)."""
 
 MAX_SUBSTEPS = 16
 """Most integration steps per sample that a short delay may ask for."""
-MAX_EVENTS = 4
-"""Most stops of sliding coordinates located within one step (the rest of a step after the
-last is integrated as it comes)."""
+MAX_EVENTS = 8
+"""Most stops of sliding coordinates located within one step; the rest of a step after the
+last takes every friction's clip (first order, bounded: no friction pushes past rest)."""
 STOP_ITERATIONS = 60
 """Most regula falsi iterations to find where a sliding coordinate stops."""
+STOP_TOLERANCE = 1e-14
+"""A stop is found when the velocity there is this share of its change over the step (or
+the bracket this share of the step)."""
 DIVERGED = 1e8
 
 Force = Callable[[np.ndarray], np.ndarray] | np.ndarray
@@ -492,7 +502,7 @@ def _program(ops, args, first, stop, x, v, stack):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _accel(b, x, v, qd, f, terms, stack, sign, modes, mass, coefs, gain, hs, out):
+def _accel(b, x, v, qd, f, terms, stack, sign, modes, own, mass, coefs, gain, hs, out):
     """Every equation's acceleration at the state (x, v) with the delayed signal ``qd`` and
     the inputs ``f``; a coordinate sliding in the direction ``modes`` feels its own
     friction's bound against it, one at rest (mode 0) the clip over the step ``hs``."""
@@ -518,29 +528,32 @@ def _accel(b, x, v, qd, f, terms, stack, sign, modes, mass, coefs, gain, hs, out
         else:
             val = np.tanh(v[tc[m]] / scale[m])
         out[eqs[m]] -= coefs[m, b] * val
-    for c in range(C):  # each coordinate's friction direction, in [-1, 1] while it sticks
-        sign[c] = 1.0 if v[c] > 0 else (-1.0 if v[c] < 0 else 0.0)
+    for c in range(C):  # each friction's direction: sliding, the step's; at rest, in [-1, 1] from its clip
+        sign[c] = modes[c] if modes[c] != 0.0 else (1.0 if v[c] > 0 else (-1.0 if v[c] < 0 else 0.0))
+    for m in range(eqs.size):  # a friction on another equation whose direction is known acts before the clips
+        if kinds[m] == 1 and tc[m] != eqs[m] and not (own[tc[m]] and modes[tc[m]] == 0.0):
+            out[eqs[m]] -= coefs[m, b] * sign[tc[m]]
     for m in range(eqs.size):
         e = eqs[m]
         if kinds[m] == 1 and tc[m] == e and coefs[m, b] > 0:
-            bound = coefs[m, b]
             if modes[e] != 0.0:
-                sign[e] = modes[e]  # sliding: against the motion the step started with
+                out[e] -= coefs[m, b] * modes[e]  # sliding: against the motion the step started with
             else:  # at rest: the force that keeps it there within the step, up to the bound
-                sign[e] = min(max(out[e] + mass[e, b] * v[e] / hs, -bound), bound) / bound
-            out[e] -= bound * sign[e]
+                force = min(max(out[e] + mass[e, b] * v[e] / hs, -coefs[m, b]), coefs[m, b])
+                sign[e] = force / coefs[m, b]
+                out[e] -= force  # (the force itself: at rest, exactly none left)
         elif kinds[m] == 1 and tc[m] == e:
             out[e] -= coefs[m, b] * sign[e]  # a negative "friction" pushes: no rest to come to
-    for m in range(eqs.size):
-        if kinds[m] == 1 and tc[m] != eqs[m]:  # the same friction, acting on another equation
+    for m in range(eqs.size):  # ... and one at rest after its clip
+        if kinds[m] == 1 and tc[m] != eqs[m] and own[tc[m]] and modes[tc[m]] == 0.0:
             out[eqs[m]] -= coefs[m, b] * sign[tc[m]]
     for e in range(C):
         out[e] /= mass[e, b]
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps,
-          h):
+def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+          steps, h):
     """One RK4 step from the fraction ``frac`` of step ``k`` over ``r`` of a step: (x, v)
     to (xn, vn), the stages' accelerations in ``a``.  A whole step reads the delayed signal
     and the inputs at the stages' precomputed nodes; a part of one (a friction's event
@@ -566,7 +579,7 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, co
             for e in range(C):
                 f[e] = _input_at(F, 2 * (k + frac + c * r), e, b)
         qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q, instant, fill, Hy, Hd, X, V, A, steps)
-        _accel(b, xs, vs, qd, f, terms, stack, sign, modes, mass, coefs, gain, hs, a[j])
+        _accel(b, xs, vs, qd, f, terms, stack, sign, modes, own, mass, coefs, gain, hs, a[j])
         if j == 0 and frac == 0.0:  # the later stages may read this step's slope of a fed-back velocity
             A[k, :, b] = a[0]
     for e in range(C):
@@ -575,11 +588,15 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, co
 
 
 @njit(cache=True, error_model="numpy")
-def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps,
-          h):
+def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+          steps, h):
     """:func:`_step` called, not inlined: the parts of a step that a friction's stop splits
     (rare: the whole steps are inlined in the kernel)."""
-    _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps, h)
+    if r * h == 0.0:  # (a stop at the part's very start: nothing to integrate)
+        xn[:], vn[:] = x, v
+    else:
+        _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V, A,
+              steps, h)
 
 
 @njit(cache=True)
@@ -619,27 +636,29 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
         for k in range(steps):  # no allocation inside the loop: the work arrays are reused
             frac = 0.0
             for event in range(MAX_EVENTS + 1):
-                for e in range(C):
-                    modes[e] = (1.0 if v[e] > 0 else (-1.0 if v[e] < 0 else 0.0)) if own[e] else 0.0
+                for e in range(C):  # sliding (its direction) or at rest (0); past the budget, every one the clip
+                    modes[e] = (1.0 if v[e] > 0 else (-1.0 if v[e] < 0 else 0.0)) if own[e] and event < MAX_EVENTS \
+                        else 0.0
                 r = 1.0 - frac
-                _step(b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
-                      steps, h)
-                who, first = -1, 2.0
+                _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V,
+                      A, steps, h)
+                who, first, zero = -1, 2.0, False
                 for e in range(C):  # each coordinate's velocity along its sliding direction at the step's end
                     ends[e] = modes[e] * vn[e]
                 for e in range(C):  # the earliest stop of a sliding coordinate within the step
-                    if event < MAX_EVENTS and modes[e] != 0.0 and ends[e] <= 0.0:
-                        theta = _stop(e, modes[e] * v[e], ends[e], b, k, frac, r, x, v, xn, vn, a, work, modes,
-                                      terms, stack, F, mass, coefs, gain, delay, X, V, A, steps, h)
+                    if modes[e] != 0.0 and ends[e] <= 0.0:
+                        theta, found = _stop(e, modes[e] * v[e], ends[e], b, k, frac, r, x, v, xn, vn, a, work, modes,
+                                             own, terms, stack, F, mass, coefs, gain, delay, X, V, A, steps, h)
                         if theta < first:
-                            who, first = e, theta
+                            who, first, zero = e, theta, found
                 if who < 0:
                     x[:], v[:] = xn, vn
                     break
-                _part(b, k, frac, first * r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay,
-                      X, V, A, steps, h)
+                _part(b, k, frac, first * r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain,
+                      delay, X, V, A, steps, h)
                 x[:], v[:] = xn, vn
-                v[who] = 0.0
+                if zero:  # (else the velocity jumped across zero with a fed-back signal: the next part turns)
+                    v[who] = 0.0
                 frac += first * r
                 if first == 1.0 or frac >= 1.0 - 1e-12:
                     break
@@ -655,44 +674,60 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
 
 
 @njit(cache=True, error_model="numpy")
-def _stop(e, g0, g1, b, k, frac, r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
-          steps, h):
-    """The share :math:`\\theta` of the step ``r`` at which coordinate ``e``'s velocity,
+def _stop(e, g0, g1, b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V,
+          A, steps, h):
+    """The share :math:`\theta` of the step ``r`` at which coordinate ``e``'s velocity,
     sliding at the step's start (``g0`` > 0 in its direction) and past rest at its end
-    (``g1`` <= 0), reaches zero: the Illinois variant of regula falsi on the RK4 step of
-    length :math:`\\theta r`, to round-off (so the split moves smoothly with the
-    parameters)."""
-    lo, glo, hi, ghi = 0.0, g0, 1.0, g1
-    side, theta = 0, 1.0
-    scale = g0 - g1
+    (``g1`` <= 0), reaches zero, by :func:`_falsi` on the RK4 step of length
+    :math:`\theta r`; and whether it is a zero (not a jump of the velocity across zero, where
+    a fed-back signal jumps)."""
+    bracket = _falsi_start(g0, g1)
     for _ in range(STOP_ITERATIONS):
-        if ghi == 0.0:
-            return hi
-        theta = (lo * ghi - hi * glo) / (ghi - glo)
-        _part(b, k, frac, theta * r, x, v, xn, vn, a, work, modes, terms, stack, F, mass, coefs, gain, delay, X, V, A,
-              steps, h)
-        g = modes[e] * vn[e]
-        if abs(g) <= 1e-14 * scale or hi - lo <= 1e-14:
-            return theta
-        if g < 0:
-            hi, ghi = theta, g
-            if side == -1:
-                glo *= 0.5
-            side = -1
-        else:
-            lo, glo = theta, g
-            if side == 1:
-                ghi *= 0.5
-            side = 1
-    return theta
+        _part(b, k, frac, bracket[5] * r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain,
+              delay, X, V, A, steps, h)
+        if _falsi(bracket, modes[e] * vn[e]):
+            return bracket[5], True
+    return bracket[5], False
+
+
+@njit(cache=True)
+def _falsi_start(g0, g1):
+    """The bracket [lo, g(lo), hi, g(hi), side, theta, scale] of :func:`_falsi` for a zero
+    in [0, 1] with g(0) = ``g0`` > 0 >= g(1) = ``g1``, its first point the chord's."""
+    return np.array([0.0, g0, 1.0, g1, 0.0, g0 / (g0 - g1), g0 - g1])
+
+
+@njit(cache=True)
+def _falsi(bracket, g):
+    """One step of the Illinois variant of regula falsi: ``g`` is the function at the
+    bracket's point; True when that point is the zero to round-off
+    (:data:`STOP_TOLERANCE` of the bracket's first span, or of its width), else the bracket
+    narrowed and its next point set.  The compiled and the Python integrators both search
+    with it, so they split a step at the same instant."""
+    lo, glo, hi, ghi, side, theta, scale = bracket
+    if abs(g) <= STOP_TOLERANCE * scale or hi - lo <= STOP_TOLERANCE:
+        return True
+    if g < 0:
+        hi, ghi = theta, g
+        if side == -1.0:
+            glo *= 0.5
+        side = -1.0
+    else:
+        lo, glo = theta, g
+        if side == 1.0:
+            ghi *= 0.5
+        side = 1.0
+    bracket[0], bracket[1], bracket[2], bracket[3], bracket[4] = lo, glo, hi, ghi, side
+    bracket[5] = (lo * ghi - hi * glo) / (ghi - glo)
+    return False
 
 
 def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h,
                    steps):
     """The same scheme in Python, vectorised over the batch, for terms the compiled kernel
     does not know (a user's own :class:`~cvxid.model.terms.Term`); a step that a sliding
-    coordinate's stop splits runs member by member, the stop found by
-    :func:`scipy.optimize.brentq`."""
+    coordinate's stop splits runs member by member, the stop found as the compiled kernel
+    finds it (:func:`_falsi`)."""
     C, B = x0.shape
     X = np.zeros((steps + 1, C, B))
     V = np.zeros((steps + 1, C, B))
@@ -730,21 +765,24 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
             for m, term in enumerate(eq_terms):
                 if not (isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates):
                     out[e] -= coefs[rows[e] + m, cols] * term.evaluate(states)
-        sign = np.sign(v)
+        sign = np.where(modes != 0, modes, np.sign(v))
+        resting = own[:, cols] & (modes == 0)
+        for e, j, row in coulomb:  # a friction on another equation whose direction is known acts before the clips
+            if j != e:
+                out[e] -= np.where(resting[j], 0.0, coefs[row, cols] * sign[j])
         for e, j, row in coulomb:
             c = coefs[row, cols]
             if j == e:
-                resting = np.clip(out[e] + mass[e, cols] * v[e] / hs, -np.maximum(c, 0.0), np.maximum(c, 0.0))
-                sign[e] = np.where(c > 0, np.where(modes[e] != 0, modes[e], resting / np.where(c > 0, c, 1.0)),
-                                   sign[e])
-                out[e] -= c * sign[e]
-        for e, j, row in coulomb:
+                force = np.clip(out[e] + mass[e, cols] * v[e] / hs, -np.maximum(c, 0.0), np.maximum(c, 0.0))
+                sign[e] = np.where(resting[e], force / np.where(c > 0, c, 1.0), sign[e])
+                out[e] -= np.where(resting[e], force, c * sign[e])
+        for e, j, row in coulomb:  # ... and one at rest after its clip
             if j != e:
-                out[e] -= coefs[row, cols] * sign[j]
+                out[e] -= np.where(resting[j], coefs[row, cols] * sign[j], 0.0)
         return out / mass[:, cols]
 
     def step(x, v, k, frac, r, modes, cols):
-        if r == 0.0:
+        if r * h == 0.0:  # (a stop at the part's very start: nothing to integrate)
             return x, v
         hs = r * h
         a, xs, vs = [], x, v
@@ -763,22 +801,30 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
                 A[k][:, cols] = a[0]
         return x + hs / 6 * (6 * v + hs * (a[0] + a[1] + a[2])), v + hs / 6 * (a[0] + 2 * a[1] + 2 * a[2] + a[3])
 
-    def modes_at(v, cols):
-        return np.where(own[:, cols], np.sign(v), 0.0)
+    def modes_at(v, cols, clip=False):  # sliding (its direction) or at rest (0); past the budget, the clip
+        return np.where(own[:, cols] & (not clip), np.sign(v), 0.0)
+
+    def stop(x, v, k, frac, r, modes, cols, e, g1):  # as the compiled kernel's _stop
+        bracket = _falsi_start(modes[e, 0] * v[e, 0], g1)
+        for _ in range(STOP_ITERATIONS):
+            if _falsi(bracket, modes[e, 0] * step(x, v, k, frac, bracket[5] * r, modes, cols)[1][e, 0]):
+                return bracket[5], True
+        return bracket[5], False
 
     def split(x, v, k, b):  # one member's step, split where its sliding coordinates stop
         cols, frac = np.array([b]), 0.0
         for event in range(MAX_EVENTS + 1):
-            modes, r = modes_at(v, cols), 1.0 - frac
+            modes, r = modes_at(v, cols, event == MAX_EVENTS), 1.0 - frac
             xn, vn = step(x, v, k, frac, r, modes, cols)
-            stops = [(brentq(lambda theta: modes[e, 0] * step(x, v, k, frac, theta * r, modes, cols)[1][e, 0], 0.0,
-                             1.0, xtol=1e-14), e)
-                     for e in range(C) if event < MAX_EVENTS and modes[e, 0] != 0 and vn[e, 0] * modes[e, 0] <= 0]
+            ends = modes[:, 0] * vn[:, 0]
+            stops = [(*stop(x, v, k, frac, r, modes, cols, e, ends[e]), e) for e in range(C)
+                     if modes[e, 0] != 0 and ends[e] <= 0]
             if not stops:
                 return xn, vn
-            first, who = min(stops)
+            first, zero, who = min(stops, key=lambda found: found[0])
             x, v = step(x, v, k, frac, first * r, modes, cols)
-            v[who] = 0.0
+            if zero:
+                v[who] = 0.0
             frac += first * r
             if first == 1.0 or frac >= 1.0 - 1e-12:
                 return x, v

@@ -576,7 +576,9 @@ def test_an_effect_added_beside_a_delay_held_at_its_top_is_named_as_a_possible_s
     """A delay held at the top of a range too short for it may leave a misfit the diagnosis
     fills with an effect (an outside check: a delay of 4 s searched up to 0.5 s, a Coulomb
     friction added): the warning names what was added.  Here the friction is real, the
-    delay 0.15 s searched up to 0.1 s."""
+    delay 0.15 s searched up to 0.1 s.  (Since the score test leaves out a delay pressed
+    against its bound, the stage by simulation error also adds an input delay of 0.7 ms and
+    an offset of 3e-4 beside the held delay, and the warning names them too.)"""
     import json
 
     from cvxid.app.cli import main
@@ -596,7 +598,7 @@ def test_an_effect_added_beside_a_delay_held_at_its_top_is_named_as_a_possible_s
     result = json.loads((tmp_path / "out" / "result.json").read_text())
     assert [s["added"] for s in result["refinement"]] == ["coulomb"], result["refinement"]
     said = [w for w in result["warnings"] if "search range" in w]
-    assert said and "the diagnosis added sign(x'), which may stand in for the longer delay" in said[0], said
+    assert said and "the diagnosis added sign(x')" in said[0] and "which may stand in for the longer delay" in said[0]
 
 
 # ---------------------------------------------------------------- a fourth outside check

@@ -299,10 +299,14 @@ def test_a_parameter_pressed_against_its_bound_is_not_free_in_the_score_test():
 
     from cvxid.identify.output_error import _pressed
 
-    problem = SimpleNamespace(bounds=(np.array([0.05, 0.05, -np.inf, 0.0]), np.array([0.3, 0.3, np.inf, np.inf])),
-                              start=np.array([0.05, 0.05, 1.0, 0.3]), natural=np.array([0.5, 0.5, 1.0, 1.0]))
+    problem = SimpleNamespace(bounds=(np.array([0.05, 0.05, -np.inf, 0.0, 0.0]), np.array([0.3, 0.3] + [np.inf] * 3)),
+                              start=np.array([0.05, 0.05, 1.0, 0.3, 0.0]), natural=np.ones(5))
     r = np.array([1.0, -2.0])
-    J = np.array([[1.0, -1.0, 1.0, 1.0], [0.0, 0.0, 0.0, 0.0]])  # gradient J^T r = (1, -1, 1, 1)
-    assert _pressed(problem, r, J).tolist() == [True, False, False, False]
-    problem.start = np.array([0.3, 0.3, 1.0, 0.0])  # at the upper bound, pressed when the gradient is negative
-    assert _pressed(problem, r, J).tolist() == [False, True, False, True]
+    J = np.array([[1.0, -1.0, 1.0, 1.0, 1e-17], [0.0, 0.0, 0.0, 0.0, 1.0]])  # gradient J^T r = (1, -1, 1, 1, ~-2)
+    assert _pressed(problem, r, J).tolist() == [True, False, False, False, False]
+    problem.start = np.array([0.3, 0.3, 1.0, 0.0, 0.0])  # at the upper bound, pressed when the gradient is negative
+    assert _pressed(problem, r, J).tolist() == [False, True, False, True, False]
+    J[:, 4] = [2.1, 1.0]  # at its lower bound, pushed out (gradient 0.1): pressed
+    assert _pressed(problem, r, J)[4]
+    J[:, 4] = [2.0 + 1e-12, 1.0]  # a gradient of round-off (1e-12 against |J_i| |r| = 5) presses nothing
+    assert not _pressed(problem, r, J)[4]

@@ -69,8 +69,11 @@ from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integ
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
 AT_BOUND = 1e-6
-"""How near its bound, as a share of its natural size (:data:`STEP_FLOOR`), a parameter
-is held there (:func:`linearisation`)."""
+"""How near its bound, as a share of its natural size in the data's units
+(:func:`typical_states`), a parameter is held there (:func:`linearisation`)."""
+PRESSED = 1e-8
+r"""... and how large its gradient :math:`J_i^T r`, as a share of :math:`\|J_i\|\,\|r\|`,
+must be to press it there (round-off does not)."""
 GRADIENT_TOLERANCE = 1e-8
 """The solver's gradient test (scipy's ``gtol``, absolute: in the squared units of the
 residual) on residuals divided by the power of two nearest the outputs' spread: in
@@ -829,19 +832,21 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
 
 
 def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
-                  step: float | None = None) -> tuple[list[str], np.ndarray, np.ndarray]:
+                  step: float | None = None, pressed: bool = True) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The simulation residual at ``fitted``'s own parameters and its forward-difference
     Jacobian, with the parameters' names (as :func:`output_error` names them): one batch
     of simulations.  ``step``: the simulation step (the sample step by default).
 
-    A parameter held at a bound that the simulation error presses against (its gradient
-    :math:`J^T r` points out of the bounds: the fit would move it past) is left out, name
-    and column: it is not free, and a score test that projected a new column on it would
-    credit it with moving where it cannot (an outside check's delay held at ``tau_min``
-    absorbed most of a late input's column and hid it)."""
+    Unless ``pressed`` is false, a parameter held at a bound that the simulation error
+    presses against (its gradient :math:`J^T r` points out of the bounds: the fit would move
+    it past) is left out, name and column: it is not free, and a score test that projected a
+    new column on it would credit it with moving where it cannot (an outside check's delay
+    held at ``tau_min`` absorbed most of a late input's column and hid it).  Dropping it
+    understates, slightly, a candidate that would pull it back inside (a conservative
+    test)."""
     problem = _problem_at(fitted, experiments, initial, step)
     r, J = _linearise(problem)
-    free = ~_pressed(problem, r, J)
+    free = ~_pressed(problem, r, J) if pressed else np.ones(len(problem.names), bool)
     return [n for n, f in zip(problem.names, free) if f], r, J[:, free]
 
 
@@ -850,7 +855,8 @@ def _pressed(problem: "_Problem", r: np.ndarray, J: np.ndarray) -> np.ndarray:
     the simulation error's gradient :math:`J^T r` presses them against."""
     lower, upper = problem.bounds
     theta, gradient, near = problem.start, J.T @ r, AT_BOUND * problem.natural
-    return ((theta <= lower + near) & (gradient > 0)) | ((theta >= upper - near) & (gradient < 0))
+    firm = np.abs(gradient) > PRESSED * np.linalg.norm(J, axis=0) * np.linalg.norm(r)
+    return firm & (((theta <= lower + near) & (gradient > 0)) | ((theta >= upper - near) & (gradient < 0)))
 
 
 def _linearise(problem: "_Problem") -> tuple[np.ndarray, np.ndarray]:

@@ -229,7 +229,7 @@ def _screen(system: SystemSpec, fit, candidates: list[str], members: dict[str, t
     seeded = _system_of(models, wider.ties)
     with warnings.catch_warnings():  # as the trial fits: an early (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)
-        names, r, J = linearisation(seeded, train, fit.initial, step)
+        names, r, J = linearisation(seeded, train, fit.initial, step, pressed=False)  # (candidates sit at 0)
     present = {k: [c for c in members[k] if parameter_of(seeded, c) in names] for k in candidates}  # (a tie leaves
     params = {k: [names.index(parameter_of(seeded, c)) for c in present[k]] for k in candidates}  # one of a unit's)
     others = np.delete(J, [i for k in candidates for i in params[k]], axis=1)
