@@ -13,7 +13,10 @@ one is a :class:`CoupledSystem`.  Both run through :func:`integrate`.
 
 The method is the classical fixed-step Runge–Kutta method.  An equation's own Coulomb
 friction :math:`F_c\,\operatorname{sign}(\dot q_i)` (:math:`F_c > 0`) is integrated as
-the two regimes it switches between.  While the coordinate slides, a step keeps the
+the two regimes it switches between; so is a sign of its velocity times a factor holding
+no sign (a Stribeck term :math:`F_s\,\operatorname{sign}(\dot q_i)\,e^{-(\dot q_i/v_s)^2}`:
+its bound :math:`F_s e^{-(\dot q_i/v_s)^2}`, :meth:`~cvxid.model.expression.Program.signed`),
+and one coordinate's frictions act as one, their bounds added.  While the coordinate slides, a step keeps the
 direction it started with, :math:`-F_c \operatorname{sign}(\dot q_i(t_k))`, and when the
 velocity has crossed zero by the step's end, the step is split at the instant it reached
 zero (found to round-off by regula falsi on the length of the RK4 step, so that the
@@ -373,7 +376,7 @@ def _hermite(u, h):
 
 
 # ---------------------------------------------------------------------- term codes
-KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH, KIND_EXPRESSION = 0, 1, 2, 3, 4
+KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH, KIND_EXPRESSION, KIND_SIGNED = 0, 1, 2, 3, 4, 5
 
 
 def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
@@ -401,11 +404,14 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
             elif isinstance(term, AbsProduct) and term.coordinate in symbols:
                 rows.append((e, KIND_ABS, px, pv, symbols[term.coordinate], 0.0, 0, 0))
             elif isinstance(term, Expression) and set(term.coordinates) <= set(symbols):
-                program = term.parsed.program
+                signed = term.parsed.program.signed()  # a friction sign(q') * factor: the factor's program
+                program = term.parsed.program if signed is None else signed[1]
                 reads = (program.ops == POSITION) | (program.ops == VELOCITY)  # its coordinates, renumbered
                 renumbered = np.where(reads, [symbols[term.coordinates[int(a)]] if r else a
                                               for a, r in zip(program.args, reads)], program.args)
-                rows.append((e, KIND_EXPRESSION, px, pv, 0, 0.0, len(ops), len(ops) + program.ops.size))
+                rows.append((e, KIND_EXPRESSION if signed is None else KIND_SIGNED, px, pv,
+                             0 if signed is None else symbols[term.coordinates[signed[0]]], 0.0, len(ops),
+                             len(ops) + program.ops.size))
                 ops += program.ops.tolist()
                 args += renumbered.tolist()
             else:
@@ -502,18 +508,20 @@ def _program(ops, args, first, stop, x, v, stack):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _accel(b, x, v, qd, f, terms, stack, sign, modes, own, mass, coefs, gain, hs, out):
+def _accel(b, x, v, qd, f, terms, stack, sign, bound, modes, own, mass, coefs, gain, hs, out):
     """Every equation's acceleration at the state (x, v) with the delayed signal ``qd`` and
-    the inputs ``f``; a coordinate sliding in the direction ``modes`` feels its own
-    friction's bound against it, one at rest (mode 0) the clip over the step ``hs``."""
+    the inputs ``f``.  Each coordinate's own frictions (``sign(q')`` and ``sign(q') *
+    factor``, positive) add up to one bound: sliding in the direction ``modes`` it acts
+    against the motion; at rest (mode 0) it is the clip over the step ``hs``."""
     eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
     C = x.size
     for e in range(C):
         out[e] = f[e] + gain[e, b] * qd
+        bound[e] = 0.0
     for m in range(eqs.size):
         kind = kinds[m]
-        if kind == 1:
-            continue  # Coulomb friction acts last: an equation's own may stick
+        if kind == 1 or kind == 5:
+            continue  # frictions act last: an equation's own may stick
         if kind == 0:
             val = 1.0
             for c in range(C):
@@ -530,23 +538,25 @@ def _accel(b, x, v, qd, f, terms, stack, sign, modes, own, mass, coefs, gain, hs
         out[eqs[m]] -= coefs[m, b] * val
     for c in range(C):  # each friction's direction: sliding, the step's; at rest, in [-1, 1] from its clip
         sign[c] = modes[c] if modes[c] != 0.0 else (1.0 if v[c] > 0 else (-1.0 if v[c] < 0 else 0.0))
-    for m in range(eqs.size):  # a friction on another equation whose direction is known acts before the clips
-        if kinds[m] == 1 and tc[m] != eqs[m] and not (own[tc[m]] and modes[tc[m]] == 0.0):
-            out[eqs[m]] -= coefs[m, b] * sign[tc[m]]
-    for m in range(eqs.size):
-        e = eqs[m]
-        if kinds[m] == 1 and tc[m] == e and coefs[m, b] > 0:
-            if modes[e] != 0.0:
-                out[e] -= coefs[m, b] * modes[e]  # sliding: against the motion the step started with
-            else:  # at rest: the force that keeps it there within the step, up to the bound
-                force = min(max(out[e] + mass[e, b] * v[e] / hs, -coefs[m, b]), coefs[m, b])
-                sign[e] = force / coefs[m, b]
-                out[e] -= force  # (the force itself: at rest, exactly none left)
-        elif kinds[m] == 1 and tc[m] == e:
-            out[e] -= coefs[m, b] * sign[e]  # a negative "friction" pushes: no rest to come to
+    for m in range(eqs.size):  # a friction's size; one on another equation whose direction is known acts now
+        if kinds[m] == 1 or kinds[m] == 5:
+            e, c = eqs[m], tc[m]
+            size = coefs[m, b] * (_program(ops, args, starts[m], stops[m], x, v, stack) if kinds[m] == 5 else 1.0)
+            if c == e and own[e] and size > 0:
+                bound[e] += size  # the coordinate's own: one bound, below
+            elif c == e or not (own[c] and modes[c] == 0.0):
+                out[e] -= size * sign[c]  # (a negative one pushes: no rest to come to)
+    for e in range(C):
+        if bound[e] > 0.0 and modes[e] != 0.0:
+            out[e] -= bound[e] * modes[e]  # sliding: against the motion the step started with
+        elif bound[e] > 0.0:  # at rest: the force that keeps it there within the step, up to the bound
+            force = min(max(out[e] + mass[e, b] * v[e] / hs, -bound[e]), bound[e])
+            sign[e] = force / bound[e]
+            out[e] -= force  # (the force itself: at rest, exactly none left)
     for m in range(eqs.size):  # ... and one at rest after its clip
-        if kinds[m] == 1 and tc[m] != eqs[m] and own[tc[m]] and modes[tc[m]] == 0.0:
-            out[eqs[m]] -= coefs[m, b] * sign[tc[m]]
+        if (kinds[m] == 1 or kinds[m] == 5) and tc[m] != eqs[m] and own[tc[m]] and modes[tc[m]] == 0.0:
+            size = coefs[m, b] * (_program(ops, args, starts[m], stops[m], x, v, stack) if kinds[m] == 5 else 1.0)
+            out[eqs[m]] -= size * sign[tc[m]]
     for e in range(C):
         out[e] /= mass[e, b]
 
@@ -558,7 +568,7 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
     to (xn, vn), the stages' accelerations in ``a``.  A whole step reads the delayed signal
     and the inputs at the stages' precomputed nodes; a part of one (a friction's event
     splits it) interpolates them."""
-    xs, vs, f, sign = work[0], work[1], work[2], work[3]
+    xs, vs, f, sign, bound = work[0], work[1], work[2], work[3], work[4]
     d, q, offs, ws, tau_h, instant, fill, Hy, Hd = delay
     C = x.size
     hs = r * h
@@ -579,7 +589,7 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
             for e in range(C):
                 f[e] = _input_at(F, 2 * (k + frac + c * r), e, b)
         qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q, instant, fill, Hy, Hd, X, V, A, steps)
-        _accel(b, xs, vs, qd, f, terms, stack, sign, modes, own, mass, coefs, gain, hs, a[j])
+        _accel(b, xs, vs, qd, f, terms, stack, sign, bound, modes, own, mass, coefs, gain, hs, a[j])
         if j == 0 and frac == 0.0:  # the later stages may read this step's slope of a fed-back velocity
             A[k, :, b] = a[0]
     for e in range(C):
@@ -625,11 +635,11 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
     failures = np.full(B, -1)
     for b in prange(B):
         a = np.zeros((4, C))  # the four stages' accelerations
-        work = np.zeros((4, C))  # the stages' state, inputs and friction directions
+        work = np.zeros((5, C))  # the stages' state, inputs, friction directions and bounds
         x, v, xn, vn, modes, ends = x0[:, b].copy(), v0[:, b].copy(), np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
         own = np.zeros(C, np.bool_)  # coordinates with their own (positive) Coulomb friction
         for m in range(eqs.size):
-            if kinds[m] == 1 and tc[m] == eqs[m] and coefs[m, b] > 0:
+            if (kinds[m] == 1 or kinds[m] == 5) and tc[m] == eqs[m] and coefs[m, b] > 0:
                 own[eqs[m]] = True
         stack = np.zeros(max(terms[8].size, 1))  # the expressions' stack machine
         X[0, :, b], V[0, :, b] = x, v
@@ -733,11 +743,18 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
     V = np.zeros((steps + 1, C, B))
     A = np.zeros((steps + 1, C, B))
     rows = np.cumsum([0] + [len(t) for t in terms])
-    coulomb = [(e, coordinates.index(term.coordinate), rows[e] + m) for e, eq_terms in enumerate(terms)
-               for m, term in enumerate(eq_terms)
-               if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates]
-    own = np.zeros((C, B), bool)  # coordinates with their own (positive) Coulomb friction
-    for e, j, row in coulomb:
+    frictions = {}  # row -> (equation, coordinate, its factor or None): sign(q') and sign(q') * factor
+    for e, eq_terms in enumerate(terms):
+        for m, term in enumerate(eq_terms):
+            if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates:
+                frictions[rows[e] + m] = (e, coordinates.index(term.coordinate), None)
+            elif isinstance(term, Expression) and set(term.coordinates) <= set(coordinates):
+                signed = term.parsed.program.signed()
+                if signed is not None:
+                    frictions[rows[e] + m] = (e, coordinates.index(term.coordinates[signed[0]]),
+                                              (signed[1], term.coordinates))
+    own = np.zeros((C, B), bool)  # coordinates with their own (positive) friction
+    for row, (e, j, _) in frictions.items():
         own[e] |= (j == e) & (coefs[row] > 0)
     y_hist, d_hist = (X, V) if q == 0 else (V, A)
     P = Hy.size
@@ -761,24 +778,27 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
         states = {c: x[j] for j, c in enumerate(coordinates)}
         states.update({velocity_symbol(c): v[j] for j, c in enumerate(coordinates)})
         out = f + gain[:, cols] * qd[None, :]
-        for e, eq_terms in enumerate(terms):  # Coulomb friction acts last: an equation's own may stick
+        for e, eq_terms in enumerate(terms):  # frictions act last: an equation's own may stick
             for m, term in enumerate(eq_terms):
-                if not (isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates):
+                if rows[e] + m not in frictions:
                     out[e] -= coefs[rows[e] + m, cols] * term.evaluate(states)
         sign = np.where(modes != 0, modes, np.sign(v))
         resting = own[:, cols] & (modes == 0)
-        for e, j, row in coulomb:  # a friction on another equation whose direction is known acts before the clips
+        bound = np.zeros_like(out)
+        sizes = {row: coefs[row, cols] * (1.0 if factor is None else factor[0].evaluate(
+                 [states[c] for c in factor[1]], [states[velocity_symbol(c)] for c in factor[1]]))
+                 for row, (_, _, factor) in frictions.items()}
+        for row, (e, j, _) in frictions.items():  # its size; one on another equation whose direction is known now
+            mine = (j == e) & own[e, cols] & (sizes[row] > 0)
+            bound[e] += np.where(mine, sizes[row], 0.0)
+            out[e] -= np.where(mine | ((j != e) & resting[j]), 0.0, sizes[row] * sign[j])
+        held = bound > 0
+        force = np.clip(out + mass[:, cols] * v / hs, -bound, bound)
+        sign = np.where(held & (modes == 0), force / np.where(held, bound, 1.0), sign)
+        out -= np.where(held, np.where(modes != 0, bound * modes, force), 0.0)
+        for row, (e, j, _) in frictions.items():  # ... and one at rest after its clip
             if j != e:
-                out[e] -= np.where(resting[j], 0.0, coefs[row, cols] * sign[j])
-        for e, j, row in coulomb:
-            c = coefs[row, cols]
-            if j == e:
-                force = np.clip(out[e] + mass[e, cols] * v[e] / hs, -np.maximum(c, 0.0), np.maximum(c, 0.0))
-                sign[e] = np.where(resting[e], force / np.where(c > 0, c, 1.0), sign[e])
-                out[e] -= np.where(resting[e], force, c * sign[e])
-        for e, j, row in coulomb:  # ... and one at rest after its clip
-            if j != e:
-                out[e] -= np.where(resting[j], coefs[row, cols] * sign[j], 0.0)
+                out[e] -= np.where(resting[j], sizes[row] * sign[j], 0.0)
         return out / mass[:, cols]
 
     def step(x, v, k, frac, r, modes, cols):

@@ -68,6 +68,21 @@ def test_the_program_computes_what_numpy_computes():
     assert isinstance(parse_term("x^2 x'", ("x",)), Monomial)  # products of powers stay monomials
 
 
+@pytest.mark.parametrize("text, friction", [
+    ("sign(x') * exp(-(x' / 0.05)^2)", True), ("exp(-(x' / 0.05)^2) * sign(x')", True), ("sign(x') * x^2", True),
+    ("sign(x') * x * 2", False), ("sign(x') + x", False), ("sign(x') * sign(x)", False), ("sign(x) * x'", False)])
+def test_a_sign_of_a_velocity_times_a_factor_is_read_as_a_friction(text, friction):
+    """The integrator splits its steps where a friction's sliding stops: a term that is
+    sign(q') times a factor holding no sign is one (its bound the factor); anything else is
+    an expression evaluated as written."""
+    signed = parse_expression(text, ("x",)).program.signed()
+    assert (signed is not None) == friction
+    if friction:
+        factor = signed[1].evaluate([np.array([0.3])], [np.array([0.02])])
+        whole = parse_expression(text, ("x",)).program.evaluate([np.array([0.3])], [np.array([0.02])])
+        assert signed[0] == 0 and factor == pytest.approx(whole)  # (the sign is +1 at x' = 0.02)
+
+
 def test_printed_latex_and_symbols():
     term = parse_term("cos(theta) theta'", ("theta",))
     assert term.name == "cos(theta) * theta'"

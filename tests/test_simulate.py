@@ -249,3 +249,30 @@ def test_more_stops_in_one_step_than_it_locates_do_not_push_back():
     assert all(np.all(V[c][2:] == 0.0) and 0.0 <= V[c][1] < v0[c] for c in names)
     errors = [X[c][-1] / (v0[c] ** 2 / 2) - 1 for c in names]
     assert max(map(abs, errors[:MAX_EVENTS])) < 1e-12 and max(map(abs, errors)) < 0.05
+
+
+def test_a_stribeck_friction_is_a_friction_too():
+    """``sign(x') * exp(-(x'/0.05)^2)`` beside a Coulomb friction: its bound joins the
+    Coulomb one (the sign times a factor is a friction whose bound is the factor), so its
+    stops are located too: within 1e-6 of a 64-fold finer integration (measured 8.9e-8; as a
+    sign switched inside a step, 7.3e-4), moving smoothly with its coefficient (largest move
+    between neighbours 1e-5 apart within 5x the median: measured 1.00; 77 before), and the
+    same in the Python integrator."""
+    from cvxid.model.terms import FunctionTerm
+
+    t = np.arange(0, 8, 1e-3)
+    force = lambda s: 3 * np.sin(1.9 * s) + 2 * np.sin(4.7 * s + 1) + 1.5 * np.sin(8.3 * s + 2)  # noqa: E731
+    terms = (parse_term("x'"), parse_term("x"), parse_term("sign(x')"), parse_term("sign(x') * exp(-(x' / 0.05)^2)"))
+    system = System(terms, np.array([0.4, 6.0, 0.6, 0.3]), 1.0, "x", 1.5, 0.15)
+    x, _ = simulate(system, t, force, 0.3, 0.0)
+    fine, _ = simulate(system, t, force, 0.3, 0.0, substeps=64)
+    assert np.max(np.abs(x - fine)) < 1e-6
+    levels = 0.3 * (1 + 1e-5 * np.arange(-50, 51))
+    coefs = np.column_stack([np.full((levels.size, 3), [0.4, 6.0, 0.6]), levels])
+    swept, _ = simulate(System(terms, coefs, 1.0, "x", 1.5, 0.15), t, force, 0.3, 0.0)
+    moves = np.linalg.norm(np.diff(swept, axis=1), axis=0)
+    assert np.max(moves) < 5 * np.median(moves)
+    nothing = FunctionTerm("nothing", "a user's term worth zero", lambda s: 0 * s["x"], frozenset({"x"}))
+    python, _ = simulate(System(terms + (nothing,), np.array([0.4, 6.0, 0.6, 0.3, 1.0]), 1.0, "x", 1.5, 0.15),
+                         t[:3000], force, 0.3, 0.0)
+    np.testing.assert_allclose(python, x[:3000], atol=1e-12)

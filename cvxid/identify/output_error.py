@@ -711,11 +711,11 @@ def _jacobian_spread(problem: "_Problem", coarse: np.ndarray, fine: np.ndarray) 
     and the parameter it is found at.  A simulation smooth and well
     conditioned in its parameters gives the same derivatives at both steps (measured:
     within 1.03 on 60 tuning systems without friction, the feedback gain known).  A friction
-    that sticks and slips bends the simulation error at every switch, and its derivatives
-    depend on the scale they are taken at (factors 1.0–6.4 on 20 report systems with
-    Coulomb friction; up to 25 when the integrator's friction still jumped); a nearly
-    singular fit (a free gain that trades with the stiffness) moves them too (1.29 on
-    tuning seed 1 without friction)."""
+    that switched inside a step bent the simulation error at every switch, and its
+    derivatives depended on the scale they were taken at (factors 1.0–6.4 on 20 report
+    systems with Coulomb friction; 4–17 with a Stribeck friction); since the integrator
+    splits its steps where sliding stops, within 1.016.  A nearly singular fit (a free gain
+    that trades with the stiffness) moves them (1.29 on tuning seed 1 without friction)."""
     keep = [i for i, n in enumerate(problem.names) if n not in problem.state_names]
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = coarse[keep] / fine[keep]

@@ -73,6 +73,31 @@ class Program:
                     stack.append(UNARY[int(op)](stack.pop()))
         return stack[0]
 
+    def signed(self) -> tuple[int, "Program"] | None:
+        """``(c, factor)`` when the program is :math:`\operatorname{sign}(\dot q_c)` times a
+        factor that holds no sign (a Stribeck friction, ``sign(x') * exp(-(x'/v_s)^2)``):
+        the integrator treats it as a friction whose bound is the factor; else None."""
+        ops, args = self.ops, self.args
+        if ops.size < 4 or ops[-1] != MUL:
+            return None
+        if ops[0] == VELOCITY and ops[1] == SIGN:
+            c, body = int(args[0]), slice(2, ops.size - 1)
+        elif ops[-3] == VELOCITY and ops[-2] == SIGN:
+            c, body = int(args[-3]), slice(0, ops.size - 3)
+        else:
+            return None
+        factor = Program(ops[body], args[body])
+        return (c, factor) if factor._single() and not np.any(factor.ops == SIGN) else None
+
+    def _single(self) -> bool:
+        """Whether the program leaves one value, never reading below its start."""
+        depth = 0
+        for op in self.ops:
+            depth += 1 if op <= VELOCITY else (-1 if op <= POW else 0)
+            if depth < 1:
+                return False
+        return depth == 1
+
     def crossings(self, positions: list[np.ndarray], velocities: list[np.ndarray]) -> np.ndarray:
         """The samples after which a divisor, or the base of a negative power, changes sign
         or is 0 (where the term may be unbounded), in order."""
