@@ -686,7 +686,7 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
 @njit(cache=True, error_model="numpy")
 def _stop(e, g0, g1, b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V,
           A, steps, h):
-    """The share :math:`\theta` of the step ``r`` at which coordinate ``e``'s velocity,
+    r"""The share :math:`\theta` of the step ``r`` at which coordinate ``e``'s velocity,
     sliding at the step's start (``g0`` > 0 in its direction) and past rest at its end
     (``g1`` <= 0), reaches zero, by :func:`_falsi` on the RK4 step of length
     :math:`\theta r`; and whether it is a zero (not a jump of the velocity across zero, where

@@ -74,7 +74,7 @@ class Program:
         return stack[0]
 
     def signed(self) -> tuple[int, "Program"] | None:
-        """``(c, factor)`` when the program is :math:`\operatorname{sign}(\dot q_c)` times a
+        r"""``(c, factor)`` when the program is :math:`\operatorname{sign}(\dot q_c)` times a
         factor that holds no sign (a Stribeck friction, ``sign(x') * exp(-(x'/v_s)^2)``):
         the integrator treats it as a friction whose bound is the factor; else None."""
         ops, args = self.ops, self.args
