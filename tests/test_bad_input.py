@@ -498,7 +498,8 @@ def test_a_final_model_that_misses_the_test_record_well_beyond_its_noise_is_said
     from types import SimpleNamespace
 
     said = [s for s in _said_of_fits(lambda out: _warn_incomplete(SimpleNamespace(
-        comparisons=out.comparisons, spec=SimpleNamespace(diagnose=object()), test=None)), fit, k_step, ceiling)]
+        comparisons=out.comparisons, spec=SimpleNamespace(diagnose=object()), test=None, polish=None)), fit, k_step,
+                                    ceiling)]
     assert bool(said) == warned, said
     if warned and ceiling < 99.9:
         assert f"where the noise allows {ceiling:.1f} %): part of the dynamics is not in the model" in said[0]
@@ -536,6 +537,8 @@ def test_a_missing_effect_is_said_end_to_end(tmp_path):
         assert bool(said) == warned, said
         if warned:
             assert "[diagnose] looks for it among the catalogue's effects" in said[0]
+            assert "The 95 % intervals assume a complete model" in said[0]  # (a ninth outside check: the disk's
+            #                                                                 moved between stretches beyond them)
 
 
 @pytest.mark.parametrize("ceiling, warned", [(83.3, True), (89.9, True), (90.1, False), (98.7, False)])
@@ -863,3 +866,23 @@ def test_an_input_that_acts_only_in_the_delay_s_history_is_refused(force):
             build_regression(linear, record, tau=0.1)
     else:
         assert build_regression(linear, record, tau=0.1).shape[1] == 3
+
+
+@pytest.mark.parametrize("samples, said", [(4.6, True), (18.0, False)])
+def test_a_gap_on_a_coarsely_sampled_record_names_the_sample_step(samples, said):
+    """A ninth outside check: the unbalanced disk at every fourth sample (4.6 samples a
+    period of its band edge) lost its friction, and the gap warning named only missing
+    effects; at 18 (its 40 Hz) and 9 the disk identifies alike."""
+    from types import SimpleNamespace
+
+    from cvxid.app.run import _coarse
+    from cvxid.diagnosis.compare import Comparison
+
+    rng = np.random.default_rng(0)
+    dt, period = 0.1, 0.1 * samples
+    t = np.arange(4000) * dt
+    x = np.sin(2 * np.pi * t / period) + 0.3 * np.sin(2 * np.pi * t / (3.1 * period)) + 1e-3 * rng.standard_normal(t.size)
+    text = _coarse(Comparison(t, x, x, 90.0, None, 90.0, 90.0), SimpleNamespace(dt=dt))
+    assert bool(text) == said, text
+    if said:
+        assert "sample step coarse against the motion" in text and "sample faster" in text

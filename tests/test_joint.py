@@ -49,6 +49,14 @@ def test_flexible_joint_spec_recovers_delay_and_stiffness_and_names_coulomb(tmp_
     assert all(result["test_fit_percent"][c] >= result["test_fit_percent_record_start"][c] - 1e-9 for c in start["position"])
     low, high = result["tau"]["interval"]  # the noise's share only: the rig's smooth friction is not in it
     assert low < physical["tau"] < high and high - low < 1e-3
+    # the polish's intervals and standard errors are keyed as `physical` is, in its signs (a ninth outside check:
+    # they were keyed by column, k_s's and B_l's negated, so "theta:alpha" -1.297 read [1.296, 1.298])
+    intervals = result["polish"]["intervals"]
+    assert set(physical) <= set(intervals) and set(physical) <= set(result["polish"]["standard_errors"])
+    assert all(intervals[name][0] <= value <= intervals[name][1] for name, value in physical.items())
+    assert physical["k_s"] > 0 and intervals["k_s"][0] > 0  # named -alpha: the coefficient is negative
+    single = json.loads(json.dumps(run(load_problem("hidden_friction")).to_dict()))
+    assert set(single) - set(result) == set() and single["coupled"] is False  # a coupled file has a single run's keys
     assert {"test_fit", "delay_profile", "refinement"} <= set(result["figures"])
     assert {"responses", "residuals"} <= set(result["figures"])  # before and after, and where: for every N
     assert "theta(t - " in result["equations"]["alpha"]  # the alpha equation reads the delayed theta

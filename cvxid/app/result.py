@@ -115,7 +115,7 @@ class RunResult:
                 frame["truth"] = pd.Series(truth, dtype=float).reindex(frame.index, fill_value=0.0)
                 frame["error %"] = relative_error_percent(frame["estimate"], frame["truth"])
         if self.polish is not None:
-            names = {k: self._physical_name(k) for k in self.polish.parameters}
+            names = {k: self._key(k) for k in self.polish.parameters}
             frame["std error"] = pd.Series({names[k]: v for k, v in self.polish.standard_errors.items()}) \
                 .reindex(frame.index)
             bounds = {names[k]: self.polish.physical_interval(k) for k in self.polish.parameters}
@@ -123,7 +123,15 @@ class RunResult:
             frame["95 % high"] = pd.Series({k: v[1] for k, v in bounds.items()}).reindex(frame.index)
         return frame
 
+    def _key(self, parameter: str) -> str:
+        """A polished parameter's key in ``result.json``: the key of :attr:`physical` (a
+        coupled system's polish names its columns ``equation:column``; one equation's are
+        already its physical names)."""
+        return self._physical_name(parameter) if self.coupled else parameter
+
     def _physical_name(self, column: str) -> str:
+        """The physical name of a coupled system's column ``equation:column`` (its ``names``,
+        ``equation:m`` for an inertia), else the column itself."""
         if column == "tau":
             return "tau"
         label, _, name = column.partition(":")
@@ -167,8 +175,9 @@ class RunResult:
                 "jacobian_spread": self.polish.jacobian_spread,
                 "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
-                "standard_errors": self.polish.standard_errors,
-                "intervals": {name: list(self.polish.physical_interval(name)) for name in self.polish.parameters},
+                "standard_errors": {self._key(name): se for name, se in self.polish.standard_errors.items()},
+                "intervals": {self._key(name): list(self.polish.physical_interval(name))
+                              for name in self.polish.parameters},
                 "seconds": self.polish.seconds,
             },
             "diagnosis": None if self.diagnosis is None else {
@@ -232,6 +241,8 @@ class RunResult:
             "selection": fit.selection,
             "algebraic_orders": vars(AlgebraicOrders.for_model(self.spec.model)),
             "solver": self.problem.solver,
+            "loss": fit.loss,
+            "coupled": False,
         }
 
     def _ties(self) -> list[dict]:
@@ -249,9 +260,13 @@ class RunResult:
             "equation": "; ".join(system.equations()),
             "equations": {label: m.equation() for label, m in system.models.items()},
             "equation_latex": {label: m.equation_latex() for label, m in system.models.items()},
+            "regression_equation": {label: m.regression_equation() for label, m in system.models.items()},
             "support": [k for k, v in system.coefficients.items() if v != 0.0],
             "ties": self._ties(),
+            "test_nmse": self.test_nmse,
             "lambda": self.lam,
+            "selection": self.spec.fit.selection,
+            "algebraic_orders": {label: vars(AlgebraicOrders.for_model(m.spec)) for label, m in system.models.items()},
             "solver": self.spec.fit.solver,
             "loss": self.spec.fit.loss,
         }

@@ -33,7 +33,7 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import cancelling_gain, natural_inertia, polish, typical_spread
+from cvxid.identify.output_error import DIVERGED, cancelling_gain, natural_inertia, polish, typical_spread
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
@@ -337,6 +337,7 @@ def _warn_implausible(out: RunResult) -> None:
                 stacklevel=2)
     if out.polish is not None:
         _warn_undetermined(out.polish)
+        _warn_diverged_profile(out.polish)
         _warn_negative_damping(out)
     if out.path is None or out.lam is None or out.problem is None:
         return
@@ -436,6 +437,30 @@ def _warn_undetermined(polish) -> None:
         warnings.warn(
             f"the data do not determine {', '.join(loose)}: each 95 % interval contains 0, so these terms may not "
             "belong in the model (remove them, or check with more or richer data)", CvxidWarning, stacklevel=2)
+
+
+def _warn_diverged_profile(polish) -> None:
+    """The output-error delay profile's fits that diverged next to the estimate, said
+    aloud: the model cannot be simulated at those delays, so the profile does not say how
+    far the delay's interval would reach; it is taken to reach them (a ninth outside
+    check's disk, its gain free: every delay but 0 diverged, and the interval read
+    0 … 0)."""
+    profile = polish.profile
+    if profile is None or profile.method != "output_error":
+        return
+    diverged = ~(profile.values < DIVERGED)
+    if not diverged.any():
+        return
+    i = int(np.argmin(np.abs(profile.taus - profile.estimate)))
+    near = [j for j in (i - 1, i + 1) if 0 <= j < profile.taus.size and diverged[j]]
+    if near:
+        warnings.warn(
+            f"the output-error fits diverged at {int(diverged.sum())} of the {profile.taus.size} delays of the "
+            f"profile, beside the estimate ({', '.join(f'{profile.taus[j]:.4g}' for j in near)} s): the model "
+            "cannot be simulated there, so the delay's 95 % interval "
+            f"({profile.interval[0]:.4g} … {profile.interval[1]:.4g} s) is taken to reach them and says nothing "
+            "beyond. An estimated gain that destabilises the loop at any other delay is the usual cause: give "
+            "the gain ([model.delay] gain = …) or a narrower delay range", CvxidWarning, stacklevel=2)
 
 
 DRIFT = 10.0
@@ -538,9 +563,32 @@ def _warn_incomplete(out: RunResult) -> None:
                 f"part of the dynamics is not in the model, and {tried}. Effects outside the "
                 "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
                 "an actuator's lag or saturation, a second input), as do a delay outside its search range and a "
-                "noise that is not white (the ceiling assumes white noise)" + _jumping(out.test) + "; test_fit.png "
+                "noise that is not white (the ceiling assumes white noise)" + _jumping(out.test) + _coarse(c, out.test)
+                + "; test_fit.png "
                 "shows where it fails, and cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") "
-                "against which state", CvxidWarning, stacklevel=2)
+                "against which state" + (". The 95 % intervals assume a complete model: with a part missing, the "
+                                         "parameters move with the stretch of data they are fitted on by more than "
+                                         "the intervals say (fit another stretch to see how much)"
+                                         if out.polish is not None else ""), CvxidWarning, stacklevel=2)
+
+
+COARSE = 8.0
+"""Samples a period of the output's band edge (:func:`~cvxid.metrics.band_period`) under
+which the gap warning names the sample step.  Measured on one record, the unbalanced disk
+(a ninth outside check): at its 40 Hz, 18 samples a period, and every second sample, 9,
+identify alike; every fourth, 4.6, loses its friction and doubles its damping."""
+
+
+def _coarse(compared, test) -> str:
+    """What the gap warning adds when the test record is sampled coarsely against its
+    motion (:data:`COARSE`), else nothing."""
+    if test is None:
+        return ""
+    samples = band_period([compared.measured], test.dt) / test.dt
+    if samples >= COARSE:
+        return ""
+    return (f", and a sample step coarse against the motion ({samples:.2g} samples a period of the output's band "
+            f"edge; the derivatives and the frictions' switching need more: sample faster, {COARSE:g} or more)")
 
 
 def _jumping(test) -> str:

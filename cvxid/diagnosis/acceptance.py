@@ -33,7 +33,10 @@ many halves of the data it did:
    equation error, and its free run (or k-step-ahead prediction; a coupled system: its free
    run) of the test record an error lower than the model's before by more than one added
    parameter lowers it by chance (:func:`chance_fall`, read off the refitted model's
-   error as an F test reads the larger model's).
+   error as an F test reads the larger model's).  When conditions 1 and 2 hold and the
+   refit's simulation does not fall, the simulations of the two models polished by output
+   error decide (:func:`cvxid.diagnosis.refine._polished`: an equation-error model of a
+   dry friction can simulate far from the data its equation error fits).
 
 No share is set per spec: the rule is the same for every spec, and its constants (20
 halves, 10 blocks, 0.7) are the stability selection's defaults, not tuned for it.  Two

@@ -31,6 +31,7 @@ from cvxid.diagnosis.ranking import Diagnosis, builders_for, by_fit, diagnose, f
 from cvxid.diagnosis.residuals import residuals
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
+from cvxid.identify.output_error import output_error
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay, profile_input_delay, with_input_tau
 from cvxid.identify.selection import Selection
@@ -62,6 +63,10 @@ class RefineStep:
     tau: float | None = None
     columns: tuple[str, ...] = ()
     tau_interval: tuple[float, float] | None = None
+    polished: bool = False
+    """The free runs that decided (``fit_before``, ``fit_after``) are of the two models
+    polished by output error: the refit's equation-error model simulated apart from the data
+    while the equation error and the halves chose the effect (:func:`_polished`)."""
 
     @property
     def simulation_error_before(self) -> float | None:
@@ -299,7 +304,7 @@ def refine(
             diagnoses[-1] = dx = dx.decided(fits)
         # the best rival first; one the rule refuses gives way to the next (a quadratic damping whose
         # refit simulates worse than its cubic rival's may still be the one whose errors fall)
-        refusal = None
+        refusal, polished_old = None, None
         for best in by_fit(fits):
             rows = rows_for(best)
             # (the model's test error: that of the last accepted step on the same rows, else computed)
@@ -307,23 +312,49 @@ def refine(
             new, new_cmp = tried[best], compared[best]
             after = _test_mse(new, rows[1])
             falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
-            probability = _inclusion(system, new, best, dx, *rows) if falls else float("nan")
-            if accepted(probability):
+            probability = _inclusion(system, new, best, dx, *rows) if after < before else float("nan")
+            judged = (old, new_cmp)
+            if after < before and not falls and not dx.candidates[best].reestimated and accepted(probability):
+                # a term's refit that the equation error chose: the simulations of both models polished decide
+                polished_old = polished_old or _polished(system, train, test)
+                judged = (polished_old, _polished(new, train, test))
+                falls = None not in judged and _improvement(*judged, ("fit_percent",)) > 1
+            if falls and accepted(probability):
                 break
-            refusal = refusal or stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls, probability)
+            refusal = refusal or stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls,
+                                            probability if falls else float("nan"))
         else:
             stopped = refusal
             break
         stopped = None
         joined = dx.candidates[best]
         steps.append(RefineStep(best, str(dx.ranking.loc[best, "term"]), group, probability, before, after,
-                                mean_fit(old), mean_fit(new_cmp), new.tau,
+                                mean_fit(judged[0]), mean_fit(judged[1]), new.tau,
                                 () if joined.reestimated and not (best == "delay" and lacking) else tuple(  # (added)
                                     new.spec.column(label, joined.term.name) for label in joined.equations),
-                                _interval(new)))
-        comparisons += [new_cmp] if comparisons else [old, new_cmp]
+                                _interval(new), judged[1] is not new_cmp))
+        comparisons = comparisons[:-1] + list(judged)  # (the last, the model before, as it was judged)
         system, (train_rows, test_rows) = new, rows
     return Refinement(system, steps, diagnoses, comparisons, start, stopped, (train_rows, test_rows))
+
+
+def _polished(system: IdentifiedSystem, train: Experiment, test: Experiment) -> dict[str, Comparison] | None:
+    """The test record's comparisons of ``system`` polished by output error on ``train``
+    (its delay free, no profile), or None when the polish fails.  Where the refit with a
+    term simulates apart from the data (a dry friction's stick phases: its delay and damping
+    from the equation error are poor) the free runs of the two polished models decide; not
+    for a delay to estimate again or an input's delay, which an unprofiled polish trades
+    with the fed-back delay (on stick-slip records an input delay of 0.3 s stood in for a
+    fed-back delay the equation error had put at 0, and was added beside the friction) (a ninth outside check's stick-slip record, 8 s: its Coulomb friction,
+    validation ratio 4.0 and kept on the halves, simulated to 32.9 % unpolished and was
+    refused against 59.5 %; polished, 90.0 % against 60.9 %, the noise allowing 89.9 %)."""
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", CvxidWarning)
+            fit = output_error(system, train, step=train.dt)
+    except CvxidError:
+        return None
+    return compare_system(fit.system, test)
 
 
 def _interval(system: IdentifiedSystem) -> tuple[float, float] | None:
@@ -393,7 +424,8 @@ def _selected_anew(system: SystemSpec, tau: float | None, train_rows: SystemBuil
     return [n for n, k in zip(problem.names, keep) if k]
 
 
-def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> float:
+def _improvement(old: dict[str, Comparison], new: dict[str, Comparison],
+                 measures: Sequence[str] = ("fit_percent", "record_fit_percent", "k_step_fit_percent")) -> float:
     """The largest factor by which a simulation error of the test record (the mean over
     coordinates) falls, each over the fall that chance gives one added parameter
     (:func:`~cvxid.diagnosis.acceptance.chance_fall` of the new model's error): the free
@@ -402,7 +434,9 @@ def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> floa
     read off the free run's error, whose samples are the more correlated).  From the
     record's own start a heavily damped wrong model forgets the start's error where the
     right one carries it; on short stretches between gaps the estimated start fits any
-    model."""
+    model.  ``measures``: the errors compared (two polished models, :func:`_polished`, by
+    their free runs from the estimated start alone: near the noise, the record's own start
+    and the short predictions of two polished models differ by their first states)."""
     def error(fit):
         return np.inf if fit is None else max(100.0 - fit, 1e-12)
 
@@ -414,7 +448,7 @@ def _improvement(old: dict[str, Comparison], new: dict[str, Comparison]) -> floa
               "k_step_fit_percent": free}
     with np.errstate(invalid="ignore"):
         ratios = np.array([error(mean_fit(old, which)) / error(mean_fit(new, which)) / chance[which]
-                           for which in chance])
+                           for which in measures])
     return float(np.nanmax(np.where(np.isnan(ratios), 0.0, ratios)))
 
 

@@ -500,6 +500,8 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
     def crossing(i, j):  # from inside point i towards outside neighbour j
         if j < 0 or j >= taus.size:
             return taus[i]
+        if not rms[j] < DIVERGED:  # its fit diverged: no measure of where the bound is crossed, up to it
+            return taus[j]
         a, b = rms[i] ** 2, rms[j] ** 2
         return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
 
