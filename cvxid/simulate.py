@@ -68,6 +68,7 @@ not — and ``q'|q'|``) run compiled; a user's own term runs the same scheme in 
 
 from __future__ import annotations
 
+import types
 from dataclasses import dataclass
 from typing import Callable
 
@@ -597,6 +598,18 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
         vn[e] = v[e] + hs / 6 * (a[0, e] + 2 * a[1, e] + 2 * a[2, e] + a[3, e])
 
 
+def _renamed(function, name: str):
+    """``function``'s code under another name (a compiled copy caches under its own)."""
+    copy = types.FunctionType(function.__code__, function.__globals__, name, function.__defaults__)
+    copy.__qualname__ = name
+    return copy
+
+
+_step_apart = njit(cache=True, error_model="numpy")(_renamed(_step.py_func, "_step_apart"))
+""":func:`_step` compiled as a function of its own, for :func:`_part`: inlined there as well
+it took 13 of a cold start's 36 s to compile (the kernel's whole steps keep it inlined)."""
+
+
 @njit(cache=True, error_model="numpy")
 def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V, A,
           steps, h):
@@ -605,8 +618,8 @@ def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
     if r * h == 0.0:  # (a stop at the part's very start: nothing to integrate)
         xn[:], vn[:] = x, v
     else:
-        _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V, A,
-              steps, h)
+        _step_apart(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mass, coefs, gain, delay, X, V,
+                    A, steps, h)
 
 
 @njit(cache=True)
@@ -633,7 +646,9 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
     V = np.zeros((steps + 1, C, B))
     A = np.zeros((steps + 1, C, B))
     failures = np.full(B, -1)
-    for b in prange(B):
+    for p in prange(B):
+        b = np.int64(p)  # (prange's index is typed uint64 in one pass and int64 in another: the functions it
+        #                   calls were compiled twice, 6 s of a cold start)
         a = np.zeros((4, C))  # the four stages' accelerations
         work = np.zeros((5, C))  # the stages' state, inputs, friction directions and bounds
         x, v, xn, vn, modes, ends = x0[:, b].copy(), v0[:, b].copy(), np.zeros(C), np.zeros(C), np.zeros(C), np.zeros(C)
