@@ -116,9 +116,9 @@ def responses_figure(labels, comparisons):
     per coordinate (``comparisons``: a list of coordinate -> comparison): the measured
     output and the model's free run over the same record, the fit in the panel's title, so
     that where each effect mattered shows in the response itself.  These are the
-    diagnosis's own models and comparisons (from the record's first state, before any
-    output-error polish), and a last row ``final …`` may show the run's final model after
-    it; the figure's title says so."""
+    diagnosis's own models and comparisons (before the run's output-error polish; a row
+    whose label says ``(polished)`` is a model the diagnosis judged polished), and a last
+    row ``final …`` may show the run's final model after it; the figure's title says so."""
     coords = list(comparisons[0])
     fig, axes = plt.subplots(len(comparisons), len(coords), figsize=(8 * len(coords) ** 0.5, 1.9 * len(comparisons)
                                                                       + 0.6), sharex=True, squeeze=False)

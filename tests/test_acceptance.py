@@ -139,6 +139,9 @@ def test_each_refusal_is_said_in_words():
     assert line == ("stopped at coulomb (validation ratio 2): halves of the training record keep it on 45 % of "
                     "them (70 % needed)")
     assert stopped_at("x^2", 1.3, False, float("nan"))["inclusion"] is None
+    polished = stopped_at("coulomb", 4.0, False, 1.0, polished=True)  # the polished models decided: said so
+    assert polished["polished"] and stop_reason(polished).endswith(
+        "(the simulation's beyond chance, the two models polished by output error, the halves keeping it on 100 %)")
 
 
 def _comparison(residual: np.ndarray, fit: float, k_step: float):

@@ -125,6 +125,7 @@ def test_a_friction_the_equation_error_model_cannot_simulate_is_judged_polished(
     ceiling = result.comparisons[-1]["x"].ceiling_percent
     assert step.fit_after > ceiling - 2.0 and step.fit_before < step.fit_after - 10.0  # (measured 89.9, 76.2; 91.3)
     assert result.table().loc["coulomb", "polished"]
+    assert result.labels == ["start (polished)", "+ coulomb (polished)"]  # the figures say which models are polished
 
 
 def test_collinear_rivals_are_decided_by_the_best_finite_free_run():

@@ -406,6 +406,15 @@ def test_a_profile_fit_that_diverged_bounds_the_delay_interval_where_it_is_and_i
         parameters={"tau": 0.1, "k": 6.0}, effective_rows=3800.0, input_noise_inflation=1.0))
     _warn_diverged_profile(SimpleNamespace(profile=finite))  # nothing diverged: nothing said
     assert not [w for w in recwarn if issubclass(w.category, CvxidWarning)]
+    # a flat valley whose edge, not the estimate's neighbour, is a diverged fit (a stranger's review)
+    valley = {t: (1.0, SimpleNamespace(parameters={"tau": t, "k": 6.0}, standard_errors={"tau": 0.0, "k": 0.01}))
+              for t in np.linspace(0.0, 0.04, 5)}
+    valley.update({t: (np.inf, None) for t in (0.05, 0.06)})
+    edge = _interval(valley, SimpleNamespace(parameters={"tau": 0.02, "k": 6.0}, effective_rows=3800.0,
+                                             input_noise_inflation=1.0))
+    assert edge.interval == (0.0, 0.05)
+    _warn_diverged_profile(SimpleNamespace(profile=edge))
+    assert "at the edge of the delay's interval (0.05 s)" in str(recwarn.pop(CvxidWarning).message)
 
 
 def test_intervals_walk_the_valley_of_a_free_gain(tmp_path):

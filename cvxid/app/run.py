@@ -440,9 +440,9 @@ def _warn_undetermined(polish) -> None:
 
 
 def _warn_diverged_profile(polish) -> None:
-    """The output-error delay profile's fits that diverged next to the estimate, said
-    aloud: the model cannot be simulated at those delays, so the profile does not say how
-    far the delay's interval would reach; it is taken to reach them (a ninth outside
+    """The output-error delay profile's fits that diverged just outside the delay's
+    interval, said aloud: the model cannot be simulated at those delays, so the profile does
+    not say how far the interval would reach; it is taken to reach them (a ninth outside
     check's disk, its gain free: every delay but 0 diverged, and the interval read
     0 … 0)."""
     profile = polish.profile
@@ -451,12 +451,16 @@ def _warn_diverged_profile(polish) -> None:
     diverged = ~(profile.values < DIVERGED)
     if not diverged.any():
         return
-    i = int(np.argmin(np.abs(profile.taus - profile.estimate)))
-    near = [j for j in (i - 1, i + 1) if 0 <= j < profile.taus.size and diverged[j]]
+    low, high = profile.interval  # the delays just outside it bound it where their fits diverged
+    inside = np.flatnonzero((profile.taus >= low) & (profile.taus <= high) & ~diverged)
+    if inside.size == 0:
+        return
+    near = [j for j in (inside[0] - 1, inside[-1] + 1) if 0 <= j < profile.taus.size and diverged[j]]
     if near:
         warnings.warn(
             f"the output-error fits diverged at {int(diverged.sum())} of the {profile.taus.size} delays of the "
-            f"profile, beside the estimate ({', '.join(f'{profile.taus[j]:.4g}' for j in near)} s): the model "
+            f"profile, at the edge of the delay's interval ({', '.join(f'{profile.taus[j]:.4g}' for j in near)} "
+            "s): the model "
             "cannot be simulated there, so the delay's 95 % interval "
             f"({profile.interval[0]:.4g} … {profile.interval[1]:.4g} s) is taken to reach them and says nothing "
             "beyond. An estimated gain that destabilises the loop at any other delay is the usual cause: give "
@@ -585,7 +589,7 @@ def _coarse(compared, test) -> str:
     if test is None:
         return ""
     samples = band_period([compared.measured], test.dt) / test.dt
-    if samples >= COARSE:
+    if samples >= COARSE or samples <= 2.0 + 1e-9:  # (2: the band edge at Nyquist, a record of noise: no word)
         return ""
     return (f", and a sample step coarse against the motion ({samples:.2g} samples a period of the output's band "
             f"edge; the derivatives and the frictions' switching need more: sample faster, {COARSE:g} or more)")

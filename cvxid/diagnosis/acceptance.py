@@ -33,8 +33,9 @@ many halves of the data it did:
    equation error, and its free run (or k-step-ahead prediction; a coupled system: its free
    run) of the test record an error lower than the model's before by more than one added
    parameter lowers it by chance (:func:`chance_fall`, read off the refitted model's
-   error as an F test reads the larger model's).  When conditions 1 and 2 hold and the
-   refit's simulation does not fall, the simulations of the two models polished by output
+   error as an F test reads the larger model's).  When conditions 1 and 2 hold for a term
+   (not a delay or an input delay, which an unprofiled polish trades with each other) and
+   the refit's simulation does not fall, the free runs of the two models polished by output
    error decide (:func:`cvxid.diagnosis.refine._polished`: an equation-error model of a
    dry friction can simulate far from the data its equation error fits).
 
@@ -148,21 +149,24 @@ def accepted(probability: float) -> bool:
 
 
 def stopped_at(effect: str, validation_ratio: float, errors_fall: bool | None = None,
-               inclusion: float | None = None) -> dict:
+               inclusion: float | None = None, polished: bool = False) -> dict:
     """Where a diagnosis loop stopped: the refused ``effect``, its ``validation_ratio`` (the
     test equation error before over after, above 1 when it helps), whether the refitted
     model's test errors fell and its inclusion (None where an earlier condition failed
-    first); JSON-ready."""
+    first), and whether the simulations compared were of the polished models; JSON-ready."""
     inclusion = None if inclusion is None or np.isnan(inclusion) else float(inclusion)
     return {"effect": effect, "validation_ratio": float(validation_ratio),
-            "errors_fall": None if errors_fall is None else bool(errors_fall), "inclusion": inclusion}
+            "errors_fall": None if errors_fall is None else bool(errors_fall), "inclusion": inclusion,
+            "polished": bool(polished)}
 
 
 def stop_reason(stopped: dict) -> str:
     """The condition of the rule the refused candidate failed, in one line."""
     s = stopped
     reason = ("it does not lower the test equation error" if not s["validation_ratio"] > 1 else
-              "the refitted model's test errors do not both fall (the simulation's beyond chance)"
+              "the refitted model's test errors do not both fall (the simulation's beyond chance"
+              + (", the two models polished by output error, the halves keeping it on "
+                 f"{100 * s['inclusion']:.0f} %)" if s.get("polished") else ")")
               if not s["errors_fall"] else
               f"halves of the training record keep it on {100 * s['inclusion']:.0f} % of them "
               f"({100 * ACCEPTANCE.threshold:.0f} % needed)")

@@ -93,7 +93,9 @@ class Refinement:
     diagnoses: list[Diagnosis]
     comparisons: list[dict[str, Comparison]] = field(default_factory=list)
     """The test record's free runs by coordinate: the starting model's, then one after each
-    added effect (empty when nothing was added)."""
+    added effect (empty when nothing was added); a step judged by polished models
+    (:attr:`RefineStep.polished`) shows its polished model (and the first, the polished
+    start)."""
     start: IdentifiedSystem | None = None
     """The model the loop started from."""
     stopped: dict | None = None
@@ -130,8 +132,12 @@ class Refinement:
 
     @property
     def labels(self) -> list[str]:
-        """``start``, then ``+ effect`` for each added effect."""
-        return ["start"] + [f"+ {s.added}" for s in self.steps]
+        """``start``, then ``+ effect`` for each added effect; ``(polished)`` after a model
+        shown polished (a step judged so, :attr:`RefineStep.polished`, and the start before
+        a first step judged so)."""
+        mark = lambda polished: " (polished)" if polished else ""  # noqa: E731
+        return [f"start{mark(bool(self.steps) and self.steps[0].polished)}"] + [
+            f"+ {s.added}{mark(s.polished)}" for s in self.steps]
 
     def plot(self, final: dict | None = None, final_mse: float | None = None):
         """The error history: the test record's equation-error MSE and free-run error
@@ -263,6 +269,7 @@ def refine(
     train_rows, test_rows = builders_for(system.specs, train, test, velocity, window, builders)
     fed_rows = None  # the builders with a fed-back delay added, made when the delay is a candidate
     steps, diagnoses, comparisons, stopped = [], [], [], None
+    baseline = None  # the model's own test comparisons (unpolished): what the next refits are judged against
     candidates = list(candidates) if candidates is not None else None
     for _ in progress(range(max_steps), "refine: diagnose, add, refit"):
         pool = candidates if candidates is not None else default_candidates(system.specs)
@@ -289,7 +296,7 @@ def refine(
         def rows_for(name):  # a fed-back delay to add is scored on its own rows, the model without it too
             return fed_rows if name == "delay" and lacking else (train_rows, test_rows)
 
-        old = comparisons[-1] if comparisons else compare_system(system, test)
+        old = baseline or compare_system(system, test)
         group = next(g for g in dx.groups if best in g)
         # the equation error cannot tell a collinear group's members apart: of those that
         # lower it, the free run of the test record chooses
@@ -304,7 +311,7 @@ def refine(
             diagnoses[-1] = dx = dx.decided(fits)
         # the best rival first; one the rule refuses gives way to the next (a quadratic damping whose
         # refit simulates worse than its cubic rival's may still be the one whose errors fall)
-        refusal, polished_old = None, None
+        refusal, polished_old = None, UNPOLISHED
         for best in by_fit(fits):
             rows = rows_for(best)
             # (the model's test error: that of the last accepted step on the same rows, else computed)
@@ -312,17 +319,21 @@ def refine(
             new, new_cmp = tried[best], compared[best]
             after = _test_mse(new, rows[1])
             falls = after < before and _improvement(old, new_cmp) > 1  # (cheap: checked first)
-            probability = _inclusion(system, new, best, dx, *rows) if after < before else float("nan")
+            a_term = not dx.candidates[best].reestimated  # (a term's refit may be judged polished, below)
+            probability = _inclusion(system, new, best, dx, *rows) if falls or after < before and a_term \
+                else float("nan")
             judged = (old, new_cmp)
-            if after < before and not falls and not dx.candidates[best].reestimated and accepted(probability):
-                # a term's refit that the equation error chose: the simulations of both models polished decide
-                polished_old = polished_old or _polished(system, train, test)
+            if after < before and not falls and a_term and accepted(probability):
+                # a term the equation error and the halves chose: the simulations of both models polished decide
+                if polished_old is UNPOLISHED:  # (once a round; a failed polish is None, not tried again)
+                    polished_old = _polished(system, train, test)
                 judged = (polished_old, _polished(new, train, test))
                 falls = None not in judged and _improvement(*judged, ("fit_percent",)) > 1
+            polished = judged[1] is not new_cmp
             if falls and accepted(probability):
                 break
             refusal = refusal or stopped_at(best, dx.ranking.loc[best, "validation_ratio"], falls,
-                                            probability if falls else float("nan"))
+                                            probability if falls or polished else float("nan"), polished)
         else:
             stopped = refusal
             break
@@ -332,22 +343,28 @@ def refine(
                                 mean_fit(judged[0]), mean_fit(judged[1]), new.tau,
                                 () if joined.reestimated and not (best == "delay" and lacking) else tuple(  # (added)
                                     new.spec.column(label, joined.term.name) for label in joined.equations),
-                                _interval(new), judged[1] is not new_cmp))
-        comparisons = comparisons[:-1] + list(judged)  # (the last, the model before, as it was judged)
+                                _interval(new), polished))
+        comparisons = (comparisons or [judged[0]]) + [judged[1]]  # (each added effect's model as it was judged)
+        baseline = new_cmp
         system, (train_rows, test_rows) = new, rows
     return Refinement(system, steps, diagnoses, comparisons, start, stopped, (train_rows, test_rows))
+
+
+UNPOLISHED = object()
+"""The round's model not polished yet (:func:`_polished` is None when its polish failed)."""
 
 
 def _polished(system: IdentifiedSystem, train: Experiment, test: Experiment) -> dict[str, Comparison] | None:
     """The test record's comparisons of ``system`` polished by output error on ``train``
     (its delay free, no profile), or None when the polish fails.  Where the refit with a
     term simulates apart from the data (a dry friction's stick phases: its delay and damping
-    from the equation error are poor) the free runs of the two polished models decide; not
-    for a delay to estimate again or an input's delay, which an unprofiled polish trades
-    with the fed-back delay (on stick-slip records an input delay of 0.3 s stood in for a
-    fed-back delay the equation error had put at 0, and was added beside the friction) (a ninth outside check's stick-slip record, 8 s: its Coulomb friction,
-    validation ratio 4.0 and kept on the halves, simulated to 32.9 % unpolished and was
-    refused against 59.5 %; polished, 90.0 % against 60.9 %, the noise allowing 89.9 %)."""
+    from the equation error are poor) the free runs of the two polished models decide (a
+    ninth outside check's stick-slip record, 8 s: its Coulomb friction, validation ratio 4.0
+    and kept on the halves, simulated to 32.9 % unpolished and was refused against 59.5 %;
+    polished, 90.0 % against 60.9 %, the noise allowing 89.9 %).  Not for a delay to
+    estimate again or an input's delay, which an unprofiled polish trades with the fed-back
+    delay (on stick-slip records an input delay of 0.3 s stood in for a fed-back delay the
+    equation error had put at 0, and was added beside the friction)."""
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CvxidWarning)

@@ -169,10 +169,12 @@ ROUNDOFF = 1e-9
 
 
 def at_rest(v: np.ndarray) -> np.ndarray:
-    r"""``v`` with the values within :data:`ROUNDOFF` of its largest set to 0.  A filter's
-    derivative of a still stretch, a quantised sensor's level samples, is zero but for
-    round-off (:math:`\sim 10^{-12}` of the motion), and a sign of it, a friction's
-    column, read the round-off: a ninth outside check's unbalanced disk, its record written
+    r"""``v`` with the values within :data:`ROUNDOFF` of its largest set to 0.  A
+    Savitzky–Golay derivative of a still stretch, a quantised sensor's level samples, is
+    zero but for round-off (:math:`\sim 10^{-12}` of the motion), and a sign of it, a
+    friction's column, read the round-off (the spline's and the observer's derivatives of
+    a still stretch are not round-off, but their far tails, 1e-9 of the motion, are as good
+    as rest): a ninth outside check's unbalanced disk, its record written
     with 10 digits instead of 17 (the angles 5e-10 rad apart, the encoder's step 3e-3),
     flipped the sign of 5–87 still samples and the diagnosis chose other terms."""
     v = np.asarray(v, float)
