@@ -119,8 +119,10 @@ def estimate_initial_state(simulate: Callable[[State], dict[str, np.ndarray]],
     start = residual(p0)
     if np.all(start == DIVERGED_RESIDUAL):
         return guess
-    solution = least_squares(residual, p0, jac=jacobian, x_scale="jac", ftol=TOLERANCE, xtol=TOLERANCE,
-                             max_nfev=MAX_EVALUATIONS)
+    # searched in units of each coordinate's spread: scipy's gradient test is not unit-free (a record in
+    # micrometres, 1e7 times larger, stopped at the guess with a gradient of 7e-10, below its 1e-8)
+    solution = least_squares(lambda q: residual(q * floors), p0 / floors, jac=lambda q: jacobian(q * floors) * floors,
+                             x_scale="jac", ftol=TOLERANCE, xtol=TOLERANCE, max_nfev=MAX_EVALUATIONS)
     if solution.cost >= 0.5 * float(start @ start):
         return guess
-    return {c: (float(x), float(v)) for c, (x, v) in unpack(solution.x).items()}
+    return {c: (float(x), float(v)) for c, (x, v) in unpack(solution.x * floors).items()}

@@ -111,6 +111,8 @@ STOP_TOLERANCE = 1e-14
 """A stop is found when the velocity there is this share of its change over the step (or
 the bracket this share of the step)."""
 DIVERGED = 1e8
+"""A simulation has diverged when a state exceeds this many times its own scale
+(:func:`divergence_limit`)."""
 
 Force = Callable[[np.ndarray], np.ndarray] | np.ndarray
 Past = Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]
@@ -300,18 +302,28 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     # every array C-contiguous and writable: one compiled signature (numba types a read-only
     # view apart, and would compile the kernel again for it)
     own = lambda a: np.require(a, float, ["C", "W"])  # noqa: E731  (copies only when needed)
+    limit = divergence_limit(F, x0, v0)
     args = (own(F), own(mass), own(coefs), own(gain), delayed, derivative, offs, ws, own(tau / h), instant, own(fill),
-            own(past_values), own(past_slopes), own(x0), own(v0), h, steps)
+            own(past_values), own(past_slopes), own(x0), own(v0), h, steps, limit)
     if codes is not None:
         X, V, failed = _kernel(codes, *args)
     else:
         X, V, failed = _python_kernel(coordinates, terms, *args)
     if failed >= 0:
         raise SimulationDiverged(
-            f"the simulation diverged at t = {t[0] + failed * h:.4g} s (|x| or |x'| > {DIVERGED:g}): the model "
+            f"the simulation diverged at t = {t[0] + failed * h:.4g} s (|x| or |x'| > {limit:.3g}): the model "
             "is unstable under this input; check its coefficients"
         )
     return X[::substeps], V[::substeps]
+
+
+def divergence_limit(F: np.ndarray, x0: np.ndarray, v0: np.ndarray) -> float:
+    """The size of a state that has diverged: :data:`DIVERGED` times the simulation's own
+    scale, the largest of its start and its inputs (at least 1).  An absolute 1e8 called a
+    stable record in nanometres or encoder counts diverged (x about 1e8: every free run, the
+    polish and the comparison failed, "the model is unstable")."""
+    scale = max(1.0, *(float(np.max(np.abs(a), initial=0.0)) for a in (F, x0, v0)))
+    return DIVERGED * scale
 
 
 def delay_substeps(tau: np.ndarray, dt: float, substeps: int = 1) -> int:
@@ -623,17 +635,17 @@ def _part(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
 
 
 @njit(cache=True)
-def _diverged(x, v) -> bool:
-    """A state beyond :data:`DIVERGED` or not finite (NaN compares false: scalar tests, as a
-    parallel reduction would drop it)."""
+def _diverged(x, v, limit) -> bool:
+    """A state beyond ``limit`` (:func:`divergence_limit`) or not finite (NaN compares false:
+    scalar tests, as a parallel reduction would drop it)."""
     for c in range(x.size):
-        if not (abs(x[c]) < DIVERGED and abs(v[c]) < DIVERGED):
+        if not (abs(x[c]) < limit and abs(v[c]) < limit):
             return True
     return False
 
 
 @njit(cache=True, error_model="numpy", parallel=True)
-def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h, steps):
+def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h, steps, limit):
     """RK4 with a Hermite history of the delayed coordinate, the variants of the batch in
     parallel threads (compiled; a Jacobian's columns are one batch).  ``terms``: the codes
     of :func:`_term_codes`.  A coordinate sliding against its own Coulomb friction stops at
@@ -688,7 +700,7 @@ def _kernel(terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, H
                 if first == 1.0 or frac >= 1.0 - 1e-12:
                     break
             X[k + 1, :, b], V[k + 1, :, b] = x, v
-            if _diverged(x, v):
+            if _diverged(x, v, limit):
                 failures[b] = k + 1
                 break
     failed = -1
@@ -748,7 +760,7 @@ def _falsi(bracket, g):
 
 
 def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau_h, instant, fill, Hy, Hd, x0, v0, h,
-                   steps):
+                   steps, limit):
     """The same scheme in Python, vectorised over the batch, for terms the compiled kernel
     does not know (a user's own :class:`~cvxid.model.terms.Term`); a step that a sliding
     coordinate's stop splits runs member by member, the stop found as the compiled kernel
@@ -875,6 +887,6 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
             xn[:, [b]], vn[:, [b]] = split(x[:, [b]], v[:, [b]], k, b)
         x, v = xn, vn
         X[k + 1], V[k + 1] = x, v
-        if not (np.abs(x).max() < DIVERGED and np.abs(v).max() < DIVERGED):
+        if not (np.abs(x).max() < limit and np.abs(v).max() < limit):
             return X, V, k + 1
     return X, V, -1

@@ -34,7 +34,7 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import DIVERGED, cancelling_gain, natural_inertia, polish, typical_spread
+from cvxid.identify.output_error import cancelling_gain, natural_inertia, polish, typical_spread
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
@@ -449,7 +449,7 @@ def _warn_diverged_profile(polish) -> None:
     profile = polish.profile
     if profile is None or profile.method != "output_error":
         return
-    diverged = ~(profile.values < DIVERGED)
+    diverged = ~np.isfinite(profile.values)
     if not diverged.any():
         return
     low, high = profile.interval  # the delays just outside it bound it where their fits diverged

@@ -141,7 +141,10 @@ INPUT_NOISE_DRAWS = 8
 """Synthetic noise records of the measured inputs from which :func:`input_noise_covariance`
 estimates the spread that the inputs' noise gives the parameters."""
 DIVERGED = 1e6
-"""The residual a diverged simulation is filled with."""
+"""The residual a diverged simulation is filled with, in units of the records' largest
+output when that is more than 1 (:attr:`_Problem.wall`): a fixed 1e6 was less than the
+residual of a good fit of a record in micrometres, 1e9 times larger, and every profile
+fit read as diverged."""
 ROUGH_STEP = 10.0
 """How many times longer a step the final fit's second Jacobian takes (see :data:`ROUGH`)."""
 ROUGH = 1.25
@@ -417,7 +420,7 @@ def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step
     try:
         fit = output_error(with_tau(origin, tau), experiments, states, step=step,
                            max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
-        if not fit.rms_after < DIVERGED and any(estimated_gain(m) for m in origin.models.values()):
+        if not np.isfinite(fit.rms_after) and any(estimated_gain(m) for m in origin.models.values()):
             fit = output_error(without_cancelling_gain(with_tau(origin, tau), every=True), experiments, None,
                                step=step, max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
     except CvxidError:
@@ -446,7 +449,7 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
             if fit is None:
                 continue
             points[float(tau)] = (fit.rms_after, fit)
-            if fit.rms_after < DIVERGED:  # (a diverged fit is no start for the next delay)
+            if np.isfinite(fit.rms_after):  # (a diverged fit, an infinite error, is no start for the next delay)
                 origin, states = fit.system, fit.initial
 
     i = int(np.argmin(np.abs(taus - first)))
@@ -463,7 +466,7 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
                 fit = _profile_fit(near.system, tau, experiments, near.initial, step)
                 if fit is not None and fit.rms_after < points[tau][0]:
                     points[tau] = (fit.rms_after, fit)
-            if points[tau][0] < DIVERGED:  # (a diverged point is no start, nor a measure, for the next)
+            if np.isfinite(points[tau][0]):  # (a diverged point is no start, nor a measure, for the next)
                 inner = tau
     best = min(points, key=lambda t: points[t][0])
     spacing = taus[1] - taus[0] if grid > 1 else 0.0
@@ -500,7 +503,7 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
     def crossing(i, j):  # from inside point i towards outside neighbour j
         if j < 0 or j >= taus.size:
             return taus[i]
-        if not rms[j] < DIVERGED:  # its fit diverged: no measure of where the bound is crossed, up to it
+        if not np.isfinite(rms[j]):  # its fit diverged: no measure of where the bound is crossed, up to it
             return taus[j]
         a, b = rms[i] ** 2, rms[j] ** 2
         return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
@@ -684,7 +687,7 @@ def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initia
     theta = np.where(np.abs(sol.x - lower) <= BOUND_SNAP, lower, np.where(np.abs(sol.x - upper) <= BOUND_SNAP,
                                                                           upper, sol.x))
     r = fun(theta)
-    after = float(np.sqrt(np.mean(r**2))) if not np.any(r == DIVERGED) else float("inf")  # (not the fill's RMS)
+    after = float(np.sqrt(np.mean(r**2))) if not np.any(r == problem.wall) else float("inf")  # (not the fill's RMS)
     n_eff = effective_rows(r)
     extra = input_noise_covariance(problem, theta, r, jacobian) if input_noise else None
     errors = dict(zip(problem.names, map(float, standard_errors(jacobian, r, n_eff, extra))))
@@ -825,7 +828,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
                  for e, each in zip(experiments, levels)]
         again = _Problem(problem.base, noisy, step, problem.initial(theta), problem.fixed_tau)
         response = again.residuals(theta[None, :])[:, 0] - residual
-        if np.all(np.isfinite(response)) and np.max(np.abs(response), initial=0.0) < DIVERGED / 2:
+        if np.all(np.isfinite(response)) and np.max(np.abs(response), initial=0.0) < problem.wall / 2:
             moves.append(influence @ response)
     if not moves:
         return None
@@ -922,6 +925,8 @@ class _Problem:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         compared = (np.column_stack([m[c][k::self.stride] for c in self.coordinates]) for m, k in zip(measured, self.starts))
         self.measured = [None if seen.all() else seen for seen in compared]  # (samples, coordinates); None: every one
+        largest = max(float(np.nanmax(np.abs(e.output(c)), initial=0.0)) for e in experiments for c in self.coordinates)
+        self.wall = DIVERGED * max(1.0, largest)  # a diverged simulation's residual (:data:`DIVERGED`)
         coefficients = system.coefficients
         periods = [band_period([e.output(c)[k:] for c in self.coordinates], e.dt)
                    for e, k in zip(experiments, self.starts)]
@@ -1068,7 +1073,7 @@ class _Problem:
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
                 out.append((X - Y[:, :, None]).reshape(-1, B) if seen is None else (X - Y[:, :, None])[seen])
             except SimulationDiverged:
-                out.append(np.full((Y.size if seen is None else int(seen.sum()), B), DIVERGED))
+                out.append(np.full((Y.size if seen is None else int(seen.sum()), B), self.wall))
         return np.vstack(out)
 
     def _forces(self, i: int, t: np.ndarray, values: dict, B: int):
