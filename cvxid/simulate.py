@@ -389,6 +389,20 @@ def _hermite(u, h):
 
 
 # ---------------------------------------------------------------------- term codes
+def _friction(term: Term, coordinates: list[str]):
+    """``(coordinate index, factor)`` when ``term`` is a dry friction the integrator stops:
+    ``sign(q')`` (factor None) or ``sign(q') * factor`` (the factor's
+    :class:`~cvxid.model.expression.Program`, reading ``term.coordinates``); else None."""
+    if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates:
+        return coordinates.index(term.coordinate), None
+    if isinstance(term, Expression) and set(term.coordinates) <= set(coordinates):
+        signed = term.parsed.program.signed()
+        if signed is not None:
+            return coordinates.index(term.coordinates[signed[0]]), signed[1]
+    return None
+
+
+
 KIND_MONOMIAL, KIND_SIGN, KIND_ABS, KIND_TANH, KIND_EXPRESSION, KIND_SIGNED = 0, 1, 2, 3, 4, 5
 
 
@@ -417,14 +431,13 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
             elif isinstance(term, AbsProduct) and term.coordinate in symbols:
                 rows.append((e, KIND_ABS, px, pv, symbols[term.coordinate], 0.0, 0, 0))
             elif isinstance(term, Expression) and set(term.coordinates) <= set(symbols):
-                signed = term.parsed.program.signed()  # a friction sign(q') * factor: the factor's program
-                program = term.parsed.program if signed is None else signed[1]
+                friction = _friction(term, coordinates)  # sign(q') * factor: the factor's program
+                program = term.parsed.program if friction is None else friction[1]
                 reads = (program.ops == POSITION) | (program.ops == VELOCITY)  # its coordinates, renumbered
                 renumbered = np.where(reads, [symbols[term.coordinates[int(a)]] if r else a
                                               for a, r in zip(program.args, reads)], program.args)
-                rows.append((e, KIND_EXPRESSION if signed is None else KIND_SIGNED, px, pv,
-                             0 if signed is None else symbols[term.coordinates[signed[0]]], 0.0, len(ops),
-                             len(ops) + program.ops.size))
+                rows.append((e, KIND_EXPRESSION if friction is None else KIND_SIGNED, px, pv,
+                             0 if friction is None else friction[0], 0.0, len(ops), len(ops) + program.ops.size))
                 ops += program.ops.tolist()
                 args += renumbered.tolist()
             else:
@@ -773,13 +786,10 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
     frictions = {}  # row -> (equation, coordinate, its factor or None): sign(q') and sign(q') * factor
     for e, eq_terms in enumerate(terms):
         for m, term in enumerate(eq_terms):
-            if isinstance(term, Sign) and not term.smoothing and term.coordinate in coordinates:
-                frictions[rows[e] + m] = (e, coordinates.index(term.coordinate), None)
-            elif isinstance(term, Expression) and set(term.coordinates) <= set(coordinates):
-                signed = term.parsed.program.signed()
-                if signed is not None:
-                    frictions[rows[e] + m] = (e, coordinates.index(term.coordinates[signed[0]]),
-                                              (signed[1], term.coordinates))
+            friction = _friction(term, coordinates)
+            if friction is not None:
+                j, factor = friction
+                frictions[rows[e] + m] = (e, j, None if factor is None else (factor, term.coordinates))
     own = np.zeros((C, B), bool)  # coordinates with their own (positive) friction
     for row, (e, j, _) in frictions.items():
         own[e] |= (j == e) & (coefs[row] > 0)

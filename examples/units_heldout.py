@@ -12,7 +12,8 @@
 # delays of 0.05-0.3 s, multisine or chirp forcing, 8 s records starting in mid-motion,
 # noise 0.01 on x and f, the gain given; `cvxid.tools.heldout`), each written as the
 # benchmark writes it and again with its positions and forces in micrometres, and with its
-# time axis 100 times shorter or longer (the delay's range, the spec's default 0.5 s, scaled
+# positions and forces a billion times larger (nanometres of a metre's motion, an encoder's
+# counts), and with its time axis 100 times shorter or longer (the delay's range, the spec's default 0.5 s, scaled
 # with it).  A method free of absolute constants returns, in the reference's units, the
 # same estimates for every scale: the table gives the largest relative difference of any
 # parameter from the reference run, and whether each run's delay interval covers the truth.
@@ -33,8 +34,8 @@ import pandas as pd
 import cvxid
 from cvxid.tools.heldout import draw, write
 
-SCALES = {"reference": (1.0, 1.0), "micrometres": (1.0, 1e-6), "100 times faster": (0.01, 1.0),
-          "100 times slower": (100.0, 1.0)}  # name: (time scale, amplitude)
+SCALES = {"reference": (1.0, 1.0), "micrometres": (1.0, 1e-6), "nanometres": (1.0, 1e9),
+          "100 times faster": (0.01, 1.0), "100 times slower": (100.0, 1.0)}  # name: (time scale, amplitude)
 POWERS = {"m": (2, 0), "x'": (1, 0), "x": (0, 0), "tau": (1, 0), "sign(x')": (0, 1)}
 """Each parameter's powers of the time scale and of the amplitude in the scaled record."""
 

@@ -188,12 +188,10 @@ def estimate_velocity(y: np.ndarray, t: np.ndarray, method: str, gains: Observer
     """Velocity of the measured position ``y`` by the named ``method`` (round-off read as
     rest, :func:`at_rest`)."""
     dt = float(t[1] - t[0])
-    if method == "observer":
-        return at_rest(observer(y, dt, gains or ObserverGains()))
-    if method == "savgol":
-        return at_rest(savgol(y, dt))
-    if method == "spline":
-        return at_rest(spline(y, t))
+    estimators = {"observer": lambda: observer(y, dt, gains or ObserverGains()), "savgol": lambda: savgol(y, dt),
+                  "spline": lambda: spline(y, t)}
+    if method in estimators:
+        return at_rest(estimators[method]())
     raise CvxidError(
         f"unknown velocity estimator '{method}'; use one of {', '.join(ESTIMATORS)} "
         "or the name of a measured velocity column"
