@@ -105,6 +105,9 @@ def write_atomically(path: Path, write) -> None:
         temporary.unlink(missing_ok=True)
 
 
+FAST_PNG = {"compress_level": 1}  # zlib's fastest: 0.1 s less for a report's seven figures, files 10 % larger
+
+
 def write_report(result, out) -> tuple[Path, str | None]:
     """Write ``result.json``, ``report.md``, ``model.json`` (the identified system, for
     :meth:`~cvxid.identified.IdentifiedSystem.load`; one equation also reads with
@@ -142,7 +145,7 @@ def write_report(result, out) -> tuple[Path, str | None]:
     for name, plot in plotters.items():
         if plot is not None:
             fig = plot()
-            write_atomically(out / f"{name}.png", lambda p: fig.savefig(p, dpi=110, format="png"))
+            write_atomically(out / f"{name}.png", lambda p: fig.savefig(p, dpi=110, format="png", pil_kwargs=FAST_PNG))
             plt.close(fig)
             figures[name] = f"{name}.png"
     data["figures"] = figures
