@@ -379,6 +379,30 @@ def test_the_delay_profile_threshold_counts_the_input_noise(inflation):
                                                 abs=1e-3)
 
 
+def test_a_parameter_that_trades_with_the_delay_reaches_the_delay_intervals_ends():
+    """A tenth outside check: x'' + 0.8 x' - 2 x = f - 6 x(t - 0.08), the gain given; the
+    damping trades with the delay (c + b tau is what the record holds), and its interval,
+    the hull of the fits inside the delay's, stopped at the last inside fit (c 0.814 … 1.044
+    for 0.8, the delay's interval reaching 0.077).  On a coarse profile whose crossings lie
+    between its points, c is interpolated at each crossing as the delay is."""
+    from types import SimpleNamespace
+
+    from cvxid.identify.output_error import _interval
+
+    tau, taus = 0.1, np.linspace(0.0, 0.2, 11)  # (points 0.02 apart; the interval's ends between them)
+
+    def fit(t):
+        return SimpleNamespace(parameters={"tau": float(t), "c": 0.32 + 6.0 * t}, standard_errors={"c": 0.0})
+
+    points = {float(t): (float(np.sqrt(1.0 + 5.0 * (t - tau) ** 2)), fit(t)) for t in taus}
+    best = SimpleNamespace(parameters={"tau": tau, "c": 0.92}, effective_rows=1000.0, rms_after=1.0,
+                           input_noise_inflation=1.0)
+    profile = _interval(points, best)
+    low, high = profile.interval
+    assert 0.06 < low < 0.08 and 0.12 < high < 0.14  # (the inside fits end at 0.08 and 0.12)
+    assert profile.ranges["c"] == pytest.approx((0.32 + 6.0 * low, 0.32 + 6.0 * high), rel=1e-12)
+
+
 def test_a_profile_fit_that_diverged_bounds_the_delay_interval_where_it_is_and_is_said(recwarn):
     """A ninth outside check's disk, its gain free: the output-error fits diverged at every
     delay but 0, and the interval, crossing towards an infinite error, read 0 … 0.  A

@@ -212,9 +212,11 @@ def test_coupled_spec_bootstraps_with_its_ties():
     assert terms["theta:alpha"]["std"] > 0
     # as for one equation, the bootstrap gives the spread and the support; with an exact
     # delay the estimate is the refit at the delay profiled on that support (here: every
-    # term, so the fit on all rows), and the ensemble mean lies close to it
+    # term, so the fit on all rows), and the ensemble mean lies within three standard
+    # errors of it (blocks of rows: the spread is of the record's independent stretches)
     assert boot.physical["k_s"] == pytest.approx(plain.physical["k_s"], rel=1e-12)
-    assert -terms["theta:alpha"]["mean"] == pytest.approx(plain.physical["k_s"], rel=0.03)
+    k_s = terms["theta:alpha"]
+    assert abs(-k_s["mean"] - plain.physical["k_s"]) <= 3 * k_s["std"] / np.sqrt(6)
     assert boot.physical["k_s"] == pytest.approx(1.3, rel=0.15)  # equation error: the noise splits k_s and J_eq
 
 

@@ -304,7 +304,10 @@ class RunResult:
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
             *([f"  {self.polish.summary()}"] if self.polish else []),
             "",
-            frame.to_string(float_format=lambda v: f"{v:.5g}"),  # (significant digits: a mass of 1e-3 reads)
+            frame.to_string(float_format=lambda v: f"{v:.5g}", na_rep="–"),  # (significant digits: a mass of
+            #                                                              1e-3 reads; – where nothing was estimated)
+            *(["  (–: not estimated by that method, e.g. a parameter given in the spec)"]
+              if frame.drop(columns=[c for c in ("truth", "error %") if c in frame]).isna().to_numpy().any() else []),
             "",
         ]
         return "\n".join(lines + self._sections() + self._footer())

@@ -31,7 +31,7 @@ from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
-from cvxid.identify.bootstrap import BootstrapSettings, bootstrap
+from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import cancelling_gain, natural_inertia, polish, typical_spread
@@ -122,7 +122,9 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"the feedback gain ({physical['gain']:.6g}) and {name} ({physical[name]:.6g}) nearly cancel: "
                 f"{determined} what the data determine, and the two apart (with the delay, {out.system.tau:.4g} s, "
                 f"and the damping) are most likely a near-collinear fit of {signal} and {signal}(t - tau), unless the "
-                "system's stiffness and feedback do nearly cancel. Give the gain "
+                "system's stiffness and feedback do nearly cancel; the intervals of the gain, "
+                f"{name} and the delay then describe this fit, not the system, and need not contain its values. "
+                "Give the gain "
                 "([model.delay] gain = …), or let the selection weigh the stiffness (a library of candidate terms "
                 f"penalises the {signal} that the gain trades with, where a listed one is not)"
                 + (_longer(spec) if _short_of_noise(out, spec) else "")
@@ -132,7 +134,9 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
                 f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
-                f"separately; {determined}. Give the gain ([model.delay] gain = …), or remove [model.delay] if the "
+                f"separately; {determined}, and their intervals follow the fits along the delay's profile from this "
+                "one, which need not reach the system's values. Give the gain ([model.delay] gain = …), or remove "
+                "[model.delay] if the "
                 "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay) and _short_of_noise(out, spec)
                                        else "") + note,
                 CvxidWarning, stacklevel=2)
@@ -772,8 +776,12 @@ def _identify(spec) -> RunResult:
     result = identified(system, {n: float(c) for n, c in coefs.items()}, tau, lam, profile, info)
     tau_info = None if profile is None else profile.as_dict()
     if ensemble is not None:
-        ensemble.physical = pd.DataFrame([identified(system, dict(r), tau).physical
-                                          for _, r in ensemble.coefficients.iterrows()])
+        if system.exact:  # each sample's delay profiled again on its rows: its error spreads into the coefficients
+            ensemble = with_delays(ensemble, lambda t: rows.at(t, system.equations),
+                                   (rows.delay.tau_min, rows.delay.tau_max), system.nonnegative, system.ties)
+        delays = ensemble.taus if ensemble.taus is not None else [tau] * len(ensemble.coefficients)
+        ensemble.physical = pd.DataFrame([identified(system, dict(r), t).physical
+                                          for (_, r), t in zip(ensemble.coefficients.iterrows(), delays)])
     if system.delay is not None and not system.exact:  # (a Taylor delay: one equation)
         interval = None
         if ensemble is not None:

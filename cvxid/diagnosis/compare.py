@@ -70,10 +70,12 @@ class Comparison:
         return float(np.sqrt(np.mean((self.free_run[covered] - self.measured[covered]) ** 2)))
 
     def table(self) -> pd.DataFrame:
-        rows = {"free run": [self.fit_percent, self.nrmse]}
+        """Fit (%) and NRMSE (:math:`1 - \text{fit}/100`) of each simulation compared."""
+        fits = {"free run": self.fit_percent}
         if self.initial == "estimated":
-            rows["free run from the record's start"] = [self.record_fit_percent, None]
-        rows[f"{self.k_step}-step ahead"] = [self.k_step_fit_percent, None]
+            fits["free run from the record's start"] = self.record_fit_percent
+        fits[f"{self.k_step}-step ahead"] = self.k_step_fit_percent
+        rows = {k: [v, None if v is None else 1.0 - v / 100.0] for k, v in fits.items()}
         return pd.DataFrame.from_dict(rows, orient="index", columns=["fit %", "NRMSE"])
 
     def title(self) -> str:
@@ -95,7 +97,7 @@ class Comparison:
 
     def __repr__(self) -> str:
         text = (f"Comparison (free run from the {self.initial} initial state)\n"
-                f"{self.table().to_string(float_format=lambda v: f'{v:.2f}')}")
+                f"{self.table().to_string(formatters={'fit %': '{:.2f}'.format, 'NRMSE': '{:.4g}'.format})}")
         return text + (f"\n  {self.message}" if self.message else "")
 
 

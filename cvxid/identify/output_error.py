@@ -480,7 +480,9 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, 
 def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayProfile:
     r"""The profile's delays whose refitted squared simulation error stays within
     :math:`\kappa\,\chi^2_1(\text{level})/n_{\rm eff}` of its least (hull, linear
-    crossings).  Every point is on the profile's own simulation step (a record sampled
+    crossings); each other parameter's range is the hull of its refits there (± their
+    standard errors) and of its values at the crossings, interpolated the same way between
+    the two fits on either side.  Every point is on the profile's own simulation step (a record sampled
     faster than that step has a slightly different error at its sample step, and the two
     must not be compared).  :math:`\kappa` is the best fit's
     ``input_noise_inflation``: the noise on the measured inputs spreads the delay
@@ -496,19 +498,32 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
         se = fit.standard_errors.get(name, 0.0)
         return z * se if np.isfinite(se) else 0.0
 
-    ranges = {name: (min(f.parameters[name] - spread(f, name) for f in fits),
-                     max(f.parameters[name] + spread(f, name) for f in fits))
-              for name in best.parameters if name != "tau" and all(name in f.parameters for f in fits)}
-
-    def crossing(i, j):  # from inside point i towards outside neighbour j
+    def crossing(i, j):  # from inside point i towards outside neighbour j: the delay there, the share of the way
         if j < 0 or j >= taus.size:
-            return taus[i]
+            return taus[i], 0.0
         if not np.isfinite(rms[j]):  # its fit diverged: no measure of where the bound is crossed, up to it
-            return taus[j]
+            return taus[j], float("nan")
         a, b = rms[i] ** 2, rms[j] ** 2
-        return taus[i] + (taus[j] - taus[i]) * (bound - a) / (b - a) if b > a else taus[j]
+        share = (bound - a) / (b - a) if b > a else 1.0
+        return taus[i] + (taus[j] - taus[i]) * share, share
 
-    low, high = crossing(inside[0], inside[0] - 1), crossing(inside[-1], inside[-1] + 1)
+    (low, low_share), (high, high_share) = crossing(inside[0], inside[0] - 1), crossing(inside[-1], inside[-1] + 1)
+
+    def edges(name):  # each parameter where the delay's interval ends, between the same two fits (a tenth
+        #              outside check: c 0.929, 0.814 … 1.044, for 0.8, the delay's interval reaching 0.077 for
+        #              0.08: the inside fits ended at 0.082)
+        out = []
+        for i, j, share in ((inside[0], inside[0] - 1, low_share), (inside[-1], inside[-1] + 1, high_share)):
+            if share > 0:  # (0 at the profile's end, NaN beside a diverged fit: nothing to interpolate)
+                near, far = points[taus[i]][1], points[taus[j]][1]
+                if name in far.parameters:
+                    value = near.parameters[name] + share * (far.parameters[name] - near.parameters[name])
+                    out += [value - spread(near, name), value + spread(near, name)]
+        return out
+
+    ranges = {name: (min([f.parameters[name] - spread(f, name) for f in fits] + edges(name)),
+                     max([f.parameters[name] + spread(f, name) for f in fits] + edges(name)))
+              for name in best.parameters if name != "tau" and all(name in f.parameters for f in fits)}
     return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), best.effective_rows,
                         "output_error", ranges)
 

@@ -19,7 +19,7 @@ from cvxid.data.excitation import excitation
 from cvxid.data.experiment import TIME_UNITS, Experiment, from_frame, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError, CvxidWarning
-from cvxid.identify.bootstrap import BootstrapSettings
+from cvxid.identify.bootstrap import RESAMPLE, BootstrapSettings
 from cvxid.identify.selection import StabilitySettings
 from cvxid.identify.path import ESTIMATORS as PATH_ESTIMATORS
 from cvxid.identify.path import SELECTING, SELECTION_RULES
@@ -836,7 +836,7 @@ def _stability(table: Table, estimator: str) -> StabilitySettings | None:
 def _bootstrap(table: Table) -> BootstrapSettings | None:
     if "bootstrap" not in table:
         return None
-    b = _table(table, "bootstrap", "fit", {"samples", "fraction", "seed"})
+    b = _table(table, "bootstrap", "fit", {"samples", "fraction", "seed", "resample"})
     return BootstrapSettings(
         samples=_number(b, "samples", "fit.bootstrap", 30, integer=True, within=(2, 10_000),
                         fix="a few hundred resamples give stable spreads"),
@@ -844,6 +844,7 @@ def _bootstrap(table: Table) -> BootstrapSettings | None:
                          fix="the share of rows in each resample"),
         seed=_number(b, "seed", "fit.bootstrap", 0, integer=True, within=(0, 2**32 - 1)),
         n_jobs=n_jobs(table),
+        resample=_string(b, "resample", "fit.bootstrap", "blocks", choices=RESAMPLE),
     )
 
 
