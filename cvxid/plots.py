@@ -139,10 +139,21 @@ def responses_figure(labels, comparisons):
         ax.set_xlabel("time [s]")
     polished = " (the last: the run's final model after it, from the estimated initial state)" \
         if labels[-1].startswith("final") else ""
-    fig.suptitle("the diagnosis's models, each added effect in turn (free run from the record's first state, "
-                 f"before the output-error polish){polished}", fontsize=9)
-    fig.tight_layout(rect=(0, 0, 1, 0.96))
+    top = _suptitle(fig, "the diagnosis's models, each added effect in turn (free run from the record's first "
+                         f"state, before the output-error polish){polished}", 9)
+    fig.tight_layout(rect=(0, 0, 1, top))
     return fig
+
+
+def _suptitle(fig, text: str, fontsize: float) -> float:
+    """``fig``'s title, wrapped to the figure's width (a title wider than the figure was
+    cut at both sides); returns the share of the height left below it."""
+    import textwrap
+
+    width, height = fig.get_size_inches()
+    lines = textwrap.wrap(text, width=max(20, int(width * 72 / (0.55 * fontsize))))
+    fig.suptitle("\n".join(lines), fontsize=fontsize)
+    return 1.0 - len(lines) * 1.25 * fontsize / 72 / height
 
 
 def signature_figure(eff, coordinate: str = "x", span: float = 2.0):
@@ -170,8 +181,7 @@ def residual_figure(res, bins: int = 21, title: str | None = None):
     equation -> its residuals)."""
     views = res if isinstance(res, dict) else {"": res}
     fig, axes = plt.subplots(len(views), 3, figsize=(12, 3.5 * len(views)), squeeze=False)
-    if title:
-        fig.suptitle(title, fontsize=10)
+    top = _suptitle(fig, title, 10) if title else 1.0
     for row, (label, view) in zip(axes, views.items()):
         row[0].plot(view.time, view.residual, "k", lw=0.5)
         row[0].set_xlabel("time [s]")
@@ -181,7 +191,7 @@ def residual_figure(res, bins: int = 21, title: str | None = None):
             ax.errorbar(b["center"], b["mean"], yerr=b["std"], fmt="ko-", ms=3)
             ax.axhline(0, color="gray", lw=0.6)
             ax.set_xlabel(symbol)
-    fig.tight_layout(rect=(0, 0, 1, 1 - 0.07 / len(views)) if title else (0, 0, 1, 1))
+    fig.tight_layout(rect=(0, 0, 1, top))
     return fig
 
 

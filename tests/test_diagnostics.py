@@ -87,7 +87,11 @@ def test_hidden_effect_is_named_added_and_the_error_falls(hidden):
     responses = result.plot_responses(final)
     assert [ax.get_title().split(":")[0] for ax in responses.axes] == ["start", f"+ {hidden}", "final (polished)"]
     assert f"fit {final['x'].fit_percent:.1f} %" in responses.axes[2].get_title()
-    assert "the last: the run's final model after it, from the estimated" in responses.get_suptitle()
+    assert "the last: the run's final model after it, from the estimated" in " ".join(responses.get_suptitle().split())
+    # the title wrapped within the figure (a tenth outside check's look: one line, cut at both sides)
+    renderer = responses.canvas.get_renderer()
+    title = responses._suptitle.get_window_extent(renderer)
+    assert 0 <= title.x0 and title.x1 <= responses.bbox.width
     history = result.plot(final, 1e-9).axes[0]
     assert history.get_lines()[1].get_ydata()[2] == pytest.approx(1 - final["x"].fit_percent / 100)
     assert history.get_lines()[0].get_ydata()[2] == 1e-9
