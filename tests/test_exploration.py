@@ -183,8 +183,10 @@ def test_bootstrap_blocks_of_rows_give_intervals_that_cover(tmp_path, seed):
     data many times, and held the exact delay at its estimate; a linear oscillator's every
     95 % interval missed the truth by 6-10 standard deviations, the delay's spread 0.
     Blocks of rows as long as the residual's correlation, each sample's delay profiled
-    again, cover m, k, c and tau (seeds 3 and 4 measured: single rows miss k on both, their
-    spread of k a fifth as wide or less)."""
+    again, cover m, k, c and tau on seeds 3 and 4, where single rows miss k, their spread of
+    k a fifth as wide or less.  (Not every seed: of seeds 0-9, 8 have every parameter
+    covered; seed 1 misses tau, seed 9 m, c and tau — the equation error's bias from the
+    noise on x, which no resampling sees.)"""
     truth = {"m": 1.0, "k": 39.0, "c": 1.0, "tau": 0.15}
     spreads = {}
     for resample in ("blocks", "rows"):
@@ -199,13 +201,36 @@ def test_bootstrap_blocks_of_rows_give_intervals_that_cover(tmp_path, seed):
 
 
 def test_bootstrap_blocks_take_the_same_stretch_of_every_equation():
+    """Blocks span a share of the record: equations stacked with different row counts take
+    the same stretch of time (a review: a 200-row equation got blocks of 4 rows where its
+    residual spans 21), and a sample holds its size exactly (the last block cut)."""
     from cvxid.identify.bootstrap import block_counts
 
-    counts = block_counts((1000, 500), 750, 100, np.random.default_rng(0))  # (half of all 1500 rows)
+    counts = block_counts((1000, 200), 613, 0.105, np.random.default_rng(0))
     first, second = counts[:1000], counts[1000:]
-    assert first.sum() == 500 and second.sum() == 250  # 5 blocks of 100 and of 50 rows
-    same = (first.reshape(500, 2).sum(axis=1) > 0) == (second > 0)  # (a block's edge may round a row apart)
-    assert same.mean() >= 0.98 and (second > 0).mean() < 0.6
+    assert first.sum() == round(613 / 1200 * 1000) and second.sum() == round(613 / 1200 * 200)
+    runs = np.diff(np.flatnonzero(np.diff(np.r_[0, second > 0, 0])))[::2]  # lengths of the drawn runs
+    assert runs.max() >= 21  # (0.105 of 200 rows)
+    same = (first.reshape(200, 5).sum(axis=1) > 0) == (second > 0)  # (a block's edge may round a row apart)
+    assert same.mean() >= 0.95
+
+
+def test_a_sample_that_leaves_a_column_without_a_row_is_drawn_again():
+    """A review: a column nonzero on a stretch of the record only (a friction's column at
+    rest elsewhere), and blocks long enough to miss it, stopped the whole run ("identically
+    zero").  Such a sample is drawn again, and the ensemble still finds the coefficient."""
+    rng = np.random.default_rng(5)
+    n = 2000
+    t = np.arange(n)
+    a = np.sin(t / 40.0) + 0.1 * rng.standard_normal(n)
+    b = np.where(t > 0.7 * n, np.cos(t / 25.0), 0.0)
+    noise = np.convolve(rng.standard_normal(n + 599), np.ones(600) / 600, mode="valid")  # (correlated: long blocks)
+    reg = Regression(np.c_[a, b], 1.5 * a + 2.0 * b + 0.01 * noise, ("a", "b"), ("library",) * 2, np.zeros(2))
+    with pytest.warns(CvxidWarning, match=r"each sample holds about [\d.]+ independent stretches, so its spreads"):
+        boot = bootstrap(reg, [1e-6], None, BootstrapSettings(20, 0.5, seed=0), show_progress=False)
+    assert boot.share * n > 200 and len(boot.coefficients) == 20 and max(boot.kept) >= 20
+    assert boot.summary().loc["b", "mean"] == pytest.approx(2.0, rel=0.01)
+    assert all(((np.abs(b) > 0) & (c > 0)).any() for c in boot.draws((n,)))
 
 
 def test_bootstrap_resample_is_checked(tmp_path):
@@ -215,12 +240,23 @@ def test_bootstrap_resample_is_checked(tmp_path):
         run(spec)
 
 
-def test_each_samples_delay_is_the_vertex_of_its_profile():
-    """A sample's delay: the least grid point refined to the vertex of the parabola through
-    it and its neighbours, never past them, and an end of the grid kept."""
-    from cvxid.identify.bootstrap import _vertex
+def test_each_samples_delay_does_not_depend_on_the_profiles_grid(tmp_path, monkeypatch):
+    """A review: each sample's delay came from a parabola through three points of the
+    41-point grid, up to a bootstrap standard deviation from a 401-point grid's.  Refined
+    between the grid's neighbours as the estimate's own profile is, the grid no longer
+    shows (measured: 7e-8 for a spread of 1.9e-4)."""
+    import cvxid.app.run as run_module
+    from cvxid.identify.bootstrap import with_delays
 
-    taus = np.linspace(0.0, 0.4, 41)
-    assert _vertex(taus, (taus - 0.1537) ** 2) == pytest.approx(0.1537, abs=1e-12)
-    assert _vertex(taus, np.abs(taus - 0.1537)) == pytest.approx(0.1537, abs=0.01)
-    assert _vertex(taus, taus) == 0.0 and _vertex(taus, -taus) == 0.4
+    seen = {}
+
+    def spy(ensemble, regression_at, bounds, nonnegative=(), ties=(), **kw):
+        seen.update(ensemble=ensemble, regression_at=regression_at, bounds=bounds)
+        return with_delays(ensemble, regression_at, bounds, nonnegative, ties, **kw)
+
+    monkeypatch.setattr(run_module, "with_delays", spy)
+    spec = tmp_path / "blocks.toml"
+    spec.write_text(BOOTSTRAPPED.format(seed=3, resample="blocks"))
+    coarse = run(spec).bootstrap
+    fine = with_delays(seen["ensemble"], seen["regression_at"], seen["bounds"], grid=401, show_progress=False)
+    assert np.abs(coarse.taus - fine.taus).max() < 1e-3 * coarse.taus.std()

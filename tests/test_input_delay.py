@@ -183,3 +183,17 @@ def test_the_diagnosis_finds_a_coupled_systems_late_input():
     step = result.refinement.steps[0]  # the free-run error falls (measured 90.9 -> 99.4 % from the estimated start)
     assert 100 - step.fit_before > 5 * (100 - step.fit_after)
     assert result.physical["tau_u"] == pytest.approx(0.04, rel=0.01)
+
+
+def test_the_bootstrap_gives_no_spread_for_an_input_delay_it_holds(tmp_path):
+    """A review: the bootstrap holds an input delay at its profiled estimate, and printed
+    its spread as 0 (a 95 % interval of one value).  It has no spread to give: null, and
+    "–" in the printed table."""
+    spec = write(tmp_path, seed=0, model="input_delay = {}")
+    spec.write_text(spec.read_text().replace('refine = "output_error"', 'refine = "none"\n'
+                                             'bootstrap = { samples = 4, seed = 0 }'))
+    result = run(spec)
+    spread = result.to_dict()["bootstrap"]["physical"]
+    assert np.isnan(spread["tau_u"]["std"]) and spread["x'"]["std"] > 0  # (null in result.json)
+    row = next(line for line in result.summary().splitlines() if line.startswith("tau_u"))
+    assert row.split()[-1] == "–"

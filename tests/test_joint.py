@@ -212,8 +212,9 @@ def test_coupled_spec_bootstraps_with_its_ties():
     assert terms["theta:alpha"]["std"] > 0
     # as for one equation, the bootstrap gives the spread and the support; with an exact
     # delay the estimate is the refit at the delay profiled on that support (here: every
-    # term, so the fit on all rows), and the ensemble mean lies within three standard
-    # errors of it (blocks of rows: the spread is of the record's independent stretches)
+    # term, so the fit on all rows), and the ensemble mean lies within three of its standard
+    # errors (std / sqrt(6)) of it: blocks of rows span the record's independent stretches, so
+    # six samples' mean moves by several % (3.7 % measured; single rows, 1.6 %)
     assert boot.physical["k_s"] == pytest.approx(plain.physical["k_s"], rel=1e-12)
     k_s = terms["theta:alpha"]
     assert abs(-k_s["mean"] - plain.physical["k_s"]) <= 3 * k_s["std"] / np.sqrt(6)

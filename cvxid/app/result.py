@@ -164,6 +164,10 @@ class RunResult:
             "stability": None if self.stability is None else self.stability.as_dict(),
             "bootstrap": None if self.bootstrap is None else {
                 "samples": len(self.bootstrap.coefficients),
+                "resample": self.bootstrap.settings.resample,
+                "fraction": self.bootstrap.settings.fraction,
+                "rows_per_sample": self.bootstrap.size,
+                "block_share": self.bootstrap.share,
                 "terms": records(self.bootstrap.summary()),
                 **({"physical": records(self.bootstrap.physical_summary())}
                    if self.bootstrap.physical is not None else {}),

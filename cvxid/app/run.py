@@ -134,9 +134,9 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 f"the delay's 95 % interval reaches 0 ({interval[0]:.4g} … {interval[1]:.4g} s): at tau = 0 the "
                 f"feedback gain * {signal}(t - tau) is the column {signal} itself, so the gain "
                 f"({physical['gain']:.4g}) and {name} ({physical[name]:.4g}), with the damping, are not identified "
-                f"separately; {determined}, and their intervals follow the fits along the delay's profile from this "
-                "one, which need not reach the system's values. Give the gain ([model.delay] gain = …), or remove "
-                "[model.delay] if the "
+                f"separately ({determined} identified; their intervals follow the fits along the delay's profile "
+                "from this one, which need not reach the system's values). Give the gain ([model.delay] gain = …), "
+                "or remove [model.delay] if the "
                 "loop has no delay" + (_longer(spec) if _at_top(out.system.tau, spec.delay) and _short_of_noise(out, spec)
                                        else "") + note,
                 CvxidWarning, stacklevel=2)
@@ -782,6 +782,8 @@ def _identify(spec) -> RunResult:
         delays = ensemble.taus if ensemble.taus is not None else [tau] * len(ensemble.coefficients)
         ensemble.physical = pd.DataFrame([identified(system, dict(r), t).physical
                                           for (_, r), t in zip(ensemble.coefficients.iterrows(), delays)])
+        if "tau_u" in ensemble.physical and input_profile is not None:  # an input's delay is held in the samples:
+            ensemble.physical["tau_u"] = np.nan                      # no spread to give (its profile has one)
     if system.delay is not None and not system.exact:  # (a Taylor delay: one equation)
         interval = None
         if ensemble is not None:

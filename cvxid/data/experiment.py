@@ -717,7 +717,8 @@ def _held(hold, inputs: Mapping[str, np.ndarray], name: str) -> tuple[str, ...]:
                     f"experiment '{name}': input '{k}' is level between single-sample jumps, as a "
                     "command held between samples is (a controller's, a DAQ's); cvxid reads "
                     "it as a smooth signal, which puts each jump half a sample early and can move a fed-back delay "
-                    "by several % (a tenth outside check's two steps: 7.5 %, 11 samples), which no interval counts: "
+                    "by several % (two steps on sample instants moved one by 7.5 %, 11 samples), which no interval "
+                    "counts: "
                     "if the plant received it held, say so ([data.*] hold = true; "
                     "cvxid.load(..., hold=True)); hold = false reads it as smooth without this warning",
                     CvxidWarning, stacklevel=4)

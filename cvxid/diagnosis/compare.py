@@ -70,7 +70,7 @@ class Comparison:
         return float(np.sqrt(np.mean((self.free_run[covered] - self.measured[covered]) ** 2)))
 
     def table(self) -> pd.DataFrame:
-        """Fit (%) and NRMSE (:math:`1 - \text{fit}/100`) of each simulation compared."""
+        r"""Fit (%) and NRMSE (:math:`1 - \text{fit}/100`) of each simulation compared."""
         fits = {"free run": self.fit_percent}
         if self.initial == "estimated":
             fits["free run from the record's start"] = self.record_fit_percent
@@ -97,8 +97,13 @@ class Comparison:
 
     def __repr__(self) -> str:
         text = (f"Comparison (free run from the {self.initial} initial state)\n"
-                f"{self.table().to_string(formatters={'fit %': '{:.2f}'.format, 'NRMSE': '{:.4g}'.format})}")
+                f"{self.table().to_string(formatters={'fit %': _shown('{:.2f}'), 'NRMSE': _shown('{:.4g}')})}")
         return text + (f"\n  {self.message}" if self.message else "")
+
+
+def _shown(form: str):
+    """A table cell's format, "–" where there is no value (a free run that diverged)."""
+    return lambda v: "–" if v is None or not np.isfinite(v) else form.format(v)
 
 
 def compare(model: IdentifiedModel, experiment: Experiment, k_step: int | None = None,

@@ -10,7 +10,7 @@ and a QR factorisation of :math:`[\tilde P\;\tilde p]` gives
 
 with :math:`R` a small upper-triangular :math:`k \times k` factor.  Every solve works on
 :math:`(R, r)`, so its cost does not grow with the record length.  Row weights (the
-bootstrap's multinomial counts) enter as :math:`\sqrt{w_i}` row factors.
+bootstrap's row counts) enter as :math:`\sqrt{w_i}` row factors.
 """
 
 from __future__ import annotations
