@@ -260,3 +260,17 @@ def test_each_samples_delay_does_not_depend_on_the_profiles_grid(tmp_path, monke
     coarse = run(spec).bootstrap
     fine = with_delays(seen["ensemble"], seen["regression_at"], seen["bounds"], grid=401, show_progress=False)
     assert np.abs(coarse.taus - fine.taus).max() < 1e-3 * coarse.taus.std()
+
+
+def test_the_bootstrap_spread_is_not_printed_beside_a_model_the_diagnosis_grew(tmp_path):
+    """The bootstrap resamples the model the selection chose; where the diagnosis then adds
+    an effect, its spreads (of the linear start: m 0.14, k 0.59) were printed as "boot std"
+    beside the final model's estimates, the added friction's as "–"."""
+    spec = (ROOT / "problems" / "hidden_friction.toml").read_text()
+    spec = spec.replace('estimator = "stlsq"', 'estimator = "stlsq"\nbootstrap = { samples = 4 }')
+    (tmp_path / "spec.toml").write_text(spec.replace('refine = "output_error"     #', 'refine = "none"     #'))
+    result = run(tmp_path / "spec.toml")
+    assert [s.added for s in result.refinement.steps] == ["coulomb"]
+    text = result.summary()
+    assert "boot std" not in text and "are of the model before the diagnosis added effects" in text
+    assert "sign(x')" not in result.bootstrap.coefficients

@@ -284,9 +284,10 @@ class RunResult:
 
     def _single_summary(self) -> str:
         frame = self.table()
-        if self.bootstrap is not None and self.bootstrap.physical is not None:
-            spread = self.bootstrap.physical_summary()
-            frame["boot std"] = spread["std"].reindex(frame.index)
+        grown = any(r is not None and r.steps for r in (self.refinement, self.simulation_refinement))
+        if self.bootstrap is not None and self.bootstrap.physical is not None and not grown:
+            spread = self.bootstrap.physical_summary()  # (of the model before any effect the diagnosis added:
+            frame["boot std"] = spread["std"].reindex(frame.index)  # beside another model's estimates, no column)
         fit = self.spec.fit
         lines = [
             f"cvxid: {self.spec.name}",
@@ -312,6 +313,8 @@ class RunResult:
             #                                                              1e-3 reads; – where nothing was estimated)
             *(["  (–: not estimated by that method, e.g. a parameter given in the spec)"]
               if frame.drop(columns=[c for c in ("truth", "error %") if c in frame]).isna().to_numpy().any() else []),
+            *(["  (the bootstrap's spreads, in result.json, are of the model before the diagnosis added effects)"]
+              if self.bootstrap is not None and grown else []),
             "",
         ]
         return "\n".join(lines + self._sections() + self._footer())
