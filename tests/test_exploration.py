@@ -272,5 +272,21 @@ def test_the_bootstrap_spread_is_not_printed_beside_a_model_the_diagnosis_grew(t
     result = run(tmp_path / "spec.toml")
     assert [s.added for s in result.refinement.steps] == ["coulomb"]
     text = result.summary()
-    assert "boot std" not in text and "are of the model before the diagnosis added effects" in text
+    assert "boot std" not in text and "are of the equation-error model before the diagnosis added effects" in text
     assert "sign(x')" not in result.bootstrap.coefficients
+
+
+def test_an_exact_delays_bootstrap_keeps_the_terms_most_samples_chose(tmp_path):
+    """A check of the block bootstrap: with an exact delay the run refits the support the
+    bootstrap gives, which was every term whose ensemble mean is nonzero — a term one block
+    sample of ten picked stayed (duffing_delay_exact at order 3: 16 terms, a test fit of 89 %
+    where the run without the bootstrap has 10 terms and 91 %; now 6 terms and 96.5 %).  The
+    support is the terms at least half the samples chose."""
+    spec = BOOTSTRAPPED.format(seed=3, resample="blocks").replace(
+        'terms = ["x", "x\'"]', 'terms = ["x", "x\'", "x^2", "x^3", "x x\'"]\nselect = true')
+    (tmp_path / "spec.toml").write_text(spec)
+    result = run(tmp_path / "spec.toml")
+    inclusion = result.bootstrap.inclusion
+    assert ((inclusion > 0) & (inclusion < 0.5)).any()  # (some term a minority of samples chose)
+    chosen = {n for n, share in inclusion.items() if share >= 0.5}
+    assert set(result.model.support) == chosen

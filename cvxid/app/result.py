@@ -284,10 +284,10 @@ class RunResult:
 
     def _single_summary(self) -> str:
         frame = self.table()
-        grown = any(r is not None and r.steps for r in (self.refinement, self.simulation_refinement))
-        if self.bootstrap is not None and self.bootstrap.physical is not None and not grown:
-            spread = self.bootstrap.physical_summary()  # (of the model before any effect the diagnosis added:
-            frame["boot std"] = spread["std"].reindex(frame.index)  # beside another model's estimates, no column)
+        apart = self._bootstrap_apart()
+        if self.bootstrap is not None and self.bootstrap.physical is not None and not apart:
+            spread = self.bootstrap.physical_summary()
+            frame["boot std"] = spread["std"].reindex(frame.index)
         fit = self.spec.fit
         lines = [
             f"cvxid: {self.spec.name}",
@@ -303,7 +303,9 @@ class RunResult:
               if self.test_fit is not None else []),
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
-                  if self.tau["interval"] else ")")] if self.tau else []),
+                  if self.tau["interval"] and all(v is not None and np.isfinite(v) for v in self.tau["interval"])
+                  else ", no interval)")]
+              if self.tau else []),
             *([f"  tau_u = {self.input_delay['estimate']:.5g} (input delay, {self.input_delay['method']}"
                + (f", 95 % interval {self.input_delay['interval'][0]:.5g} … {self.input_delay['interval'][1]:.5g})"
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
@@ -311,13 +313,21 @@ class RunResult:
             "",
             frame.to_string(float_format=lambda v: f"{v:.5g}", na_rep="–"),  # (significant digits: a mass of
             #                                                              1e-3 reads; – where nothing was estimated)
-            *(["  (–: not estimated by that method, e.g. a parameter given in the spec)"]
+            *(["  (–: not estimated by that method: a parameter given in the spec, or an input's delay the "
+               "bootstrap holds)"]
               if frame.drop(columns=[c for c in ("truth", "error %") if c in frame]).isna().to_numpy().any() else []),
-            *(["  (the bootstrap's spreads, in result.json, are of the model before the diagnosis added effects)"]
-              if self.bootstrap is not None and grown else []),
+            *([f"  (the bootstrap's spreads, in result.json, are of the equation-error model {apart})"]
+              if self.bootstrap is not None and apart else []),
             "",
         ]
         return "\n".join(lines + self._sections() + self._footer())
+
+    def _bootstrap_apart(self) -> str:
+        """What stands between the bootstrapped model and the printed estimates ("" when
+        nothing does): its spreads are then not printed beside them."""
+        if any(r is not None and r.steps for r in (self.refinement, self.simulation_refinement)):
+            return "before the diagnosis added effects"
+        return "before the output-error polish" if self.polish is not None else ""
 
     def _coupled_summary(self) -> str:
         system = self.system
@@ -338,6 +348,11 @@ class RunResult:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:
             lines.append(f"  {self.polish.summary()}")
+        if self.bootstrap is not None:
+            b, apart = self.bootstrap, self._bootstrap_apart()
+            lines.append(f"  bootstrap: {len(b.coefficients)} samples of {100 * b.settings.fraction:.3g} % of the rows "
+                         f"({b.settings.resample}); each term's mean, spread and inclusion in result.json"
+                         + (f", of the equation-error model {apart}" if apart else ""))
         lines += ["", self.table().to_string(float_format=lambda v: f"{v:.5g}"), ""]
         return "\n".join(lines + self._sections() + self._footer())
 

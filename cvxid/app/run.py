@@ -758,6 +758,8 @@ def _identify(spec) -> RunResult:
         )
         coefs = dict(ensemble.mean)  # the paper's estimate (its eq. 18)
         keep = np.array([coefs[n] != 0 for n in problem.names])
+        if system.exact:  # refitted on a support below: the terms most samples chose (any sample's kept every term
+            keep = (ensemble.inclusion.to_numpy() >= 0.5) | (problem.penalties == 0)  # one block sample picked)
     profile = None
     if system.exact:
         same = keep.all() and system is whole_system  # the whole library's profile is this support's

@@ -237,7 +237,8 @@ def bootstrap(
     share = 0.0 if settings.resample == "rows" else block_share(regression)
     if share * n > 1 and size / n / share < FEW_BLOCKS:
         warnings.warn(f"the bootstrap's residual is correlated over {100 * share:.3g} % of the record: each sample "
-                      f"holds about {size / n / share:.2g} independent stretches, so its spreads and "
+                      + (f"holds about {size / n / share:.2g} independent stretches" if size / n >= share else
+                         "holds less than one independent stretch") + ", so its spreads and "
                       "intervals are rough (a longer record, or fraction = 1)", CvxidWarning, stacklevel=2)
     kept, draws = _usable_draws(parts, size, share, settings, _usable(regression))
     task = delayed(_one_sample)
