@@ -89,7 +89,8 @@ def test_the_samples_warnings_reach_the_caller_once_each_with_their_count(sparse
         warnings.simplefilter("always")
         bootstrap(reg, lambdas=[1e-15, 1e-14], validate=lambda c: c, show_progress=False,
                   settings=BootstrapSettings(6, 0.5, seed=7, n_jobs=2))
-    said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)]
+    said = [str(w.message) for w in caught if issubclass(w.category, CvxidWarning)
+            and "bootstrap samples:" in str(w.message)]  # (beside the one that six samples are few)
     assert len(said) == 1 and said[0].startswith("6 of 6 bootstrap samples: the lambda rule chose the top of its "
                                                  "grid"), said
 
@@ -290,3 +291,11 @@ def test_an_exact_delays_bootstrap_keeps_the_terms_most_samples_chose(tmp_path):
     assert ((inclusion > 0) & (inclusion < 0.5)).any()  # (some term a minority of samples chose)
     chosen = {n for n, share in inclusion.items() if share >= 0.5}
     assert set(result.model.support) == chosen
+
+
+def test_a_bootstrap_of_few_samples_says_its_intervals_are_rough(sparse):
+    """A check: samples = 2 printed a "95 % interval" of two values without a word."""
+    P, p, _, _, _ = sparse
+    reg = Regression(P, p, tuple("abcdef"), ("library",) * 6, np.ones(6))
+    with pytest.warns(CvxidWarning, match="the bootstrap has 2 samples: its 95 % intervals are their extreme values"):
+        bootstrap(reg, [1e-3], None, BootstrapSettings(2, 0.5, seed=0), show_progress=False)

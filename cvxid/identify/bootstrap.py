@@ -68,6 +68,8 @@ class BootstrapSettings:
                              f"got {self.resample!r}")
 
 
+FEW_SAMPLES = 10
+"""Below this many samples a warning says the intervals are rough."""
 FEW_BLOCKS = 3
 """Below this many independent stretches a sample the spreads are rough, and a warning
 says so (at 1 every sample is the whole record: no spread at all)."""
@@ -240,6 +242,9 @@ def bootstrap(
                       + (f"holds about {size / n / share:.2g} independent stretches" if size / n >= share else
                          "holds less than one independent stretch") + ", so its spreads and "
                       "intervals are rough (a longer record, or fraction = 1)", CvxidWarning, stacklevel=2)
+    if settings.samples < FEW_SAMPLES:
+        warnings.warn(f"the bootstrap has {settings.samples} samples: its 95 % intervals are their extreme values "
+                      f"and its spreads rough (samples = 30, the default, or more)", CvxidWarning, stacklevel=2)
     kept, draws = _usable_draws(parts, size, share, settings, _usable(regression))
     task = delayed(_one_sample)
     args = (tuple(nonnegative), solver, lambdas, validate, estimator, debias, selection, tuple(ties), os.getpid())
