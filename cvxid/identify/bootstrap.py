@@ -35,12 +35,11 @@ from typing import Callable, Sequence
 import numpy as np
 import pandas as pd
 from joblib import Parallel, delayed
-from scipy.optimize import minimize_scalar
 
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import select
 from cvxid.identify.problem import Problem, constrained_least_squares
-from cvxid.identify.profile import GRID, effective_rows
+from cvxid.identify.profile import GRID, effective_rows, least_between
 from cvxid.progress import progress
 from cvxid.regression.regression import Regression
 
@@ -315,20 +314,16 @@ def with_delays(ensemble: Bootstrap, regression_at: Callable[[float], Regression
             reduced = regression.reduce(counts)
         return reduced, constrained_least_squares(reduced, names, mask, nonnegative, ties)
 
-    def errors_at(tau, regression=None):  # every sample's least-squares error at one delay
-        regression = regression_at(tau) if regression is None else regression
+    def errors_at(tau):  # every sample's least-squares error at one delay, its regression built once
+        regression = regression_at(tau)
         return [_mse(fitted(regression, c, m, tau)) for c, m in zip(draws, masks)]
 
-    profile = np.array([errors_at(float(t), first if i == 0 else None)
-                        for i, t in enumerate(progress(taus, desc="bootstrap: each sample's delay",
-                                                       disable=not show_progress))]).T
+    profile = np.array([errors_at(float(t)) for t in progress(taus, desc="bootstrap: each sample's delay",
+                                                              disable=not show_progress)]).T
     rows, delays = [], []
     for counts, mask, errors in zip(draws, masks, profile):
-        i = int(np.argmin(errors))  # then between the least's neighbours, as the estimate's own profile does
-        best = minimize_scalar(lambda t: _mse(fitted(regression_at(float(t)), counts, mask, float(t))),
-                               bounds=(taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]), method="bounded",
-                               options={"xatol": 1e-6 * bounds[1]}) if grid > 1 else None
-        tau = float(best.x) if best is not None and best.fun <= errors[i] else float(taus[i])
+        tau = least_between(lambda t: _mse(fitted(regression_at(float(t)), counts, mask, float(t))), taus, errors,
+                            bounds[1])  # (refined as the estimate's own profile is)
         reduced, scaled = fitted(regression_at(tau), counts, mask, tau)
         rows.append(np.where(mask, reduced.to_physical(scaled), 0.0))
         delays.append(tau)

@@ -529,9 +529,11 @@ def _interval(points: dict, best: PolishResult, level: float = 0.95) -> DelayPro
                     out += [value - spread(near, name), value + spread(near, name)]
         return out
 
-    ranges = {name: (min([f.parameters[name] - spread(f, name) for f in fits] + edges(name)),
-                     max([f.parameters[name] + spread(f, name) for f in fits] + edges(name)))
-              for name in best.parameters if name != "tau" and all(name in f.parameters for f in fits)}
+    ranges = {}
+    for name in best.parameters:
+        if name != "tau" and all(name in f.parameters for f in fits):
+            ends = [f.parameters[name] + side * spread(f, name) for f in fits for side in (-1, 1)] + edges(name)
+            ranges[name] = (min(ends), max(ends))
     return DelayProfile(taus, rms, tau, (float(min(low, tau)), float(max(high, tau))), best.effective_rows,
                         "output_error", ranges)
 

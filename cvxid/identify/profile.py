@@ -142,11 +142,7 @@ def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: in
         return cache[tau]
 
     taus = np.linspace(lo, hi, grid)
-    values = np.array([value(t) for t in taus])
-    i = int(np.argmin(values))
-    left, right = taus[max(i - 1, 0)], taus[min(i + 1, grid - 1)]
-    best = minimize_scalar(value, bounds=(left, right), method="bounded", options={"xatol": 1e-6 * hi})
-    tau = float(best.x) if best.fun <= values[i] else float(taus[i])
+    tau = least_between(value, taus, np.array([value(t) for t in taus]), hi)
     bounds, n_eff = (np.nan, np.nan), np.nan
     if interval:
         reg, reduced, scaled = fit(tau)
@@ -155,6 +151,18 @@ def _profile(regression_at, lo: float, hi: float, support, nonnegative, grid: in
         bounds = (_crossing(value, tau, lo, bound, taus), _crossing(value, tau, hi, bound, taus))
     order = np.argsort(list(cache))  # (every delay evaluated, the crossings' too)
     return DelayProfile(np.array(list(cache))[order], np.array(list(cache.values()))[order], tau, bounds, n_eff, method)
+
+
+def least_between(value, taus: np.ndarray, values: np.ndarray, top: float) -> float:
+    """The least of a profile sampled at ``taus`` (``values``), refined between that point's
+    neighbours by scipy's bounded scalar minimiser of ``value`` (to 1e-6 of ``top``, the
+    range's upper end); the grid point where the refinement finds nothing lower."""
+    i = int(np.argmin(values))
+    if taus.size < 2:
+        return float(taus[i])
+    best = minimize_scalar(value, bounds=(taus[max(i - 1, 0)], taus[min(i + 1, taus.size - 1)]), method="bounded",
+                           options={"xatol": 1e-6 * top})
+    return float(best.x) if best.fun <= values[i] else float(taus[i])
 
 
 def _crossing(value, tau, edge, bound, grid) -> float:
