@@ -7,7 +7,31 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-from matplotlib.ticker import NullLocator  # noqa: E402
+from matplotlib.ticker import LogFormatter, NullLocator  # noqa: E402
+
+_SUPERSCRIPT = str.maketrans("-0123456789", "\u207b\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079")
+
+
+class PlainLogFormatter(LogFormatter):
+    """Log-axis tick labels in plain text, ``10⁻³`` and ``2×10⁻³``, where they are labelled
+    at all (matplotlib's choice of ticks).  Its default labels are mathtext, whose first use
+    in a process costs 0.3 s: a report of three log axes drew 10 % faster."""
+
+    def __call__(self, x, pos=None):
+        if not super().__call__(x, pos):
+            return ""
+        exponent = int(np.floor(np.log10(abs(x)) + 1e-9))
+        coefficient = round(abs(x) / 10.0**exponent)
+        power = f"10{str(exponent).translate(_SUPERSCRIPT)}"
+        return ("\u2212" if x < 0 else "") + (power if coefficient == 1 else f"{coefficient}\u00d7{power}")
+
+
+def log_scale(ax, axis: str = "y") -> None:
+    """A logarithmic ``axis`` ("x" or "y") of ``ax``, labelled by :class:`PlainLogFormatter`."""
+    (ax.set_xscale if axis == "x" else ax.set_yscale)("log")
+    which = ax.xaxis if axis == "x" else ax.yaxis
+    which.set_major_formatter(PlainLogFormatter())
+    which.set_minor_formatter(PlainLogFormatter(labelOnlyBase=False))
 
 
 def path_figure(path, selected: float | None = None):
@@ -17,7 +41,7 @@ def path_figure(path, selected: float | None = None):
     scaled = np.array([f.scaled for f in path.fits])
     for j, name in enumerate(path.names):  # (past ten terms the colours repeat: the line style tells them apart)
         top.plot(lam, scaled[:, j], label=name, lw=1.2, ls=("-", "--", ":", "-.")[j // 10 % 4])
-    top.set_xscale("log")
+    log_scale(top, "x")
     if lam.max() >= 100 * lam.min():  # the decades are labelled; minor ticks on this shared axis cost 0.2 s
         top.xaxis.set_minor_locator(NullLocator())
     top.set_ylabel("scaled coefficient")
@@ -25,7 +49,7 @@ def path_figure(path, selected: float | None = None):
     top.set_title("lambda path")
     bottom.plot(lam, path.validation, "k.-", label="validation MSE")
     bottom.plot(lam, [f.train_mse for f in path.fits], "b.-", label="training MSE")
-    bottom.set_yscale("log")
+    log_scale(bottom)
     bottom.set_xlabel("lambda")
     bottom.legend()
     if selected is not None:
@@ -58,7 +82,8 @@ def comparison_figure(time, measured, simulated, title: str = "free-run simulati
 def order_figure(table, best: int):
     """Test error against library order, with AIC/BIC beside it (the paper's Fig. 1)."""
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.semilogy(table.index, table["test_mse"], "ko-", label="test MSE")
+    ax.plot(table.index, table["test_mse"], "ko-", label="test MSE")
+    log_scale(ax)
     ax.axvline(best, color="r", ls="--", lw=1, label=f"chosen order {best}")
     ax.set_xlabel("library order N = M")
     ax.set_ylabel("test MSE")
@@ -85,7 +110,8 @@ def coordinates_figure(time, measured: dict, simulated: dict, title: str = "free
 def delay_profile_figure(taus, values, tau: float, interval=None):
     """The delay profile: the least-squares optimal value against the delay."""
     fig, ax = plt.subplots(figsize=(6, 4))
-    ax.semilogy(taus, values, "k.-")
+    ax.plot(taus, values, "k.-")
+    log_scale(ax)
     ax.axvline(tau, color="r", ls="--", lw=1, label=f"tau = {tau:.4g}")
     if interval is not None:
         ax.axvspan(*interval, color="r", alpha=0.15, label="95 % interval")
@@ -101,7 +127,8 @@ def refinement_figure(labels, series: dict):
     named error series of the same length."""
     fig, ax = plt.subplots(figsize=(6, 4))
     for (name, values), style in zip(series.items(), ("ko-", "rs--", "b^:")):
-        ax.semilogy(range(len(values)), values, style, label=name)
+        ax.plot(range(len(values)), values, style, label=name)
+    log_scale(ax)
     ax.set_xticks(range(len(labels)))
     ax.set_xticklabels(labels, rotation=20)
     ax.set_ylabel("error")
