@@ -138,20 +138,47 @@ def test_the_path_figure_is_drawn_only_when_terms_were_selected(tmp_path):
     assert (tmp_path / "selected" / "path.png").is_file()
 
 
-def test_log_axes_are_labelled_in_plain_text_not_mathtext():
-    """A log axis reads 10⁻⁴ (and 2×10⁻⁴ where minor ticks are labelled), never a mathtext
-    string, whose first parse in a process costs 0.3 s."""
+def test_log_axes_are_labelled_in_plain_text_and_narrow_data_keep_a_linear_axis():
+    """A log axis reads 10⁻⁴, never a mathtext
+    string, whose first parse in a process costs 0.3 s; data spanning less than a decade
+    keep a linear axis, whose labels differ (an eleventh outside check: a log axis over
+    0.01012 … 0.01015 read 10⁻² at every tick)."""
     import numpy as np
 
     from cvxid.plots import delay_profile_figure
 
     wide = delay_profile_figure(np.linspace(0, 0.3, 7), np.logspace(-5, -2, 7), 0.1)
-    narrow = delay_profile_figure(np.linspace(0, 0.3, 7), np.linspace(2e-4, 6e-4, 7), 0.1)
+    narrow = delay_profile_figure(np.linspace(0, 0.3, 7), np.linspace(0.01012, 0.01015, 7), 0.1)
     labels = []
     for fig in (wide, narrow):
         fig.canvas.draw()
         axis = fig.axes[0].yaxis
-        labels.append({t.get_text() for t in axis.get_majorticklabels() + axis.get_minorticklabels()} - {""})
-    assert {"10\u207b\u2074", "10\u207b\u00b3"} <= labels[0], labels[0]
-    assert {"2\u00d710\u207b\u2074", "4\u00d710\u207b\u2074"} <= labels[1], labels[1]
-    assert not any("$" in text for text in labels[0] | labels[1])
+        labels.append([t.get_text() for t in axis.get_majorticklabels() + axis.get_minorticklabels()
+                       if t.get_text() and fig.axes[0].get_ylim()[0] <= t.get_position()[1] <= fig.axes[0].get_ylim()[1]])
+    assert {"10\u207b\u2074", "10\u207b\u00b3"} <= set(labels[0]), labels[0]
+    assert not any("$" in text for text in labels[0] + labels[1])
+    assert narrow.axes[0].get_yscale() == "linear" and len(set(labels[1])) == len(labels[1]) >= 3, labels[1]
+
+
+def test_the_delay_profile_figure_names_each_method_and_shades_the_printed_interval():
+    """An eleventh outside check: the figure shaded the equation error's interval (0.117 …
+    0.361) beside the output-error delay 0.2505, whose printed interval was 0.148 … 0.325,
+    and named neither.  Now the equation error's profile, estimate and interval are named
+    as such, and the polish's simulation-error profile has its own panel with the final
+    delay and the printed interval."""
+    import numpy as np
+    from matplotlib.patches import Rectangle
+
+    from cvxid.identify.profile import DelayProfile
+    from cvxid.plots import delay_profile_figure
+
+    taus = np.linspace(0, 0.5, 21)
+    polished = DelayProfile(taus, 0.01 + (taus - 0.25) ** 2, 0.2505, (0.148, 0.309), 100.0)
+    fig = delay_profile_figure(taus, 1e-8 * (1 + (taus - 0.275) ** 2), 0.275, (0.117, 0.361), polished, 0.2505,
+                               (0.148, 0.325))
+    top, bottom = fig.axes
+    legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in (top, bottom)]
+    assert legends[0][0] == "equation error: tau = 0.275" and "output-error polish (final): tau = 0.2505" in legends[1]
+    band = bottom.patches[0]  # (axvspan's; in data x, axes y)
+    xs = [band.get_x(), band.get_x() + band.get_width()] if isinstance(band, Rectangle) else band.get_xy()[:, 0]
+    assert np.isclose(min(xs), 0.148) and np.isclose(max(xs), 0.325), xs

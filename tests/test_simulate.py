@@ -58,6 +58,26 @@ def test_batch_equals_single_runs():
         np.testing.assert_allclose(xb[:, i], xi, atol=1e-12)
 
 
+def test_a_batchs_columns_are_the_runs_one_at_a_time_and_its_first_divergence_is_said():
+    """A batch's variants run in parallel threads: each column is its run alone, and the
+    one variant that diverges stops the batch at its own time."""
+
+    terms = (parse_term("x'"), parse_term("x"))
+    coefs = np.array([[0.4, 6.0], [0.8, 3.0], [0.2, 9.0], [1.5, 4.0], [0.3, 5.0]])
+    taus = np.array([0.2, 0.3, 0.1, 0.25, 0.05])
+    xb, _ = simulate(System(terms, coefs, 1.0, "x", 2.0, taus, 0, "zero"), T, np.sin, 1.0, 0.0)
+    for i in range(5):
+        xi, _ = simulate(System(terms, coefs[i], 1.0, "x", 2.0, taus[i], 0, "zero"), T, np.sin, 1.0, 0.0)
+        np.testing.assert_allclose(xb[:, i], xi, rtol=0, atol=1e-12)
+    t = np.arange(20001) * 1e-3
+    unstable = np.array([[0.0, 6.0], [0.0, 6.0], [0.0, 6.0], [0.0, -50.0]])
+    with pytest.raises(SimulationDiverged) as alone:
+        simulate(System(terms, unstable[3], 1.0), t, lambda t: 0 * t, 1.0, 0.0)
+    with pytest.raises(SimulationDiverged) as batch:
+        simulate(System(terms, unstable, 1.0), t, lambda t: 0 * t, 1.0, 0.0)
+    assert str(batch.value) == str(alone.value) and "diverged at t = " in str(batch.value)
+
+
 def test_divergence_is_a_clear_error():
     unstable = System((parse_term("x"),), np.array([-50.0]), 1.0)
     with pytest.raises(SimulationDiverged, match="diverged at t = .* unstable"):

@@ -127,11 +127,15 @@ def write_report(result, out) -> tuple[Path, str | None]:
     system = result.system
     added = result.refinement is not None and bool(result.refinement.steps)
     final = result.comparisons if result.polish is not None else None  # (else the diagnosis's last model is final)
+    equation = result.unpolished or system  # (the equation error's model: its delay profile, estimate and interval)
     plotters = {
         "path": (lambda: path_figure(result.path, result.lam))
         if result.path is not None and (result.path.problem.penalties > 0).any() else None,  # (flat without)
-        "delay_profile": (lambda: delay_profile_figure(*system.profile, system.tau, system.info.get("tau_interval")))
-        if system.profile is not None else None,
+        "delay_profile": (lambda: delay_profile_figure(
+            *equation.profile, equation.tau, equation.info.get("tau_interval"),
+            result.polish.profile if result.polish is not None else None, system.tau,
+            (result.tau or {}).get("interval") if result.polish is not None else None))
+        if equation.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
         "refinement": (lambda: result.refinement.plot(final, result.test_mse)) if added else None,
         "responses": (lambda: result.refinement.plot_responses(final)) if added else None,
