@@ -238,7 +238,7 @@ def test_a_term_the_data_do_not_show_is_named_after_the_polish(tmp_path):
     (tmp_path / "spec.toml").write_text(text)
     assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
     warnings = json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
-    said = [w for w in warnings if "the data do not determine" in w]
+    said = [w for w in warnings if "the training record does not determine" in w]
     assert len(said) == 1 and "x^2 (" in said[0] and "x (" not in said[0] and "x' (" not in said[0], warnings
 
 
@@ -448,6 +448,31 @@ def test_a_time_column_in_milliseconds_is_named(tmp_path, capsys, rng):
     _delayed_record(tmp_path, rng, dt=1.0)
     err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3))
     assert "tau_max = 0.3 s is shorter than one sample" in err and "time column's units" in err, err
+    assert '[data.train] time_unit = "ms"' in err, err
+
+
+def test_a_time_column_in_milliseconds_without_a_delay_is_said(tmp_path, capsys, rng):
+    """An eleventh outside check: a 500 Hz record stamped in ms, a spec without a delay,
+    identified an inertia of 994753 with sliding windows of 2290 "s" and no word; `cvxid
+    init` wrote tau_max = 500.  A step of a second or more on whole numbers is now said
+    by the spec's record and by `cvxid init`, with the fix; a record in seconds is not."""
+    from cvxid.app.cli import main
+    from cvxid.spec.load import load_problem
+
+    _delayed_record(tmp_path, rng, dt=1.0)
+    spec = "\n".join(line for line in DELAYED.format(tau_max=0.3).splitlines()
+                     if not line.startswith(("signal", "method", "tau_max", "gain")) and line != "[model.delay]")
+    (tmp_path / "spec.toml").write_text(spec)
+    with pytest.warns(CvxidWarning, match=r'\[data.train\] is sampled every 1 s .* set \[data.train\] time_unit = "ms"'):
+        load_problem(tmp_path / "spec.toml").experiment("train")
+    assert main(["init", str(tmp_path / "train.csv"), "-o", str(tmp_path / "init.toml")]) == 0
+    assert "if it counts milliseconds, write the spec again with --time-unit ms" in capsys.readouterr().err
+    _delayed_record(tmp_path, rng)  # (in seconds: nothing said)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", CvxidWarning)
+        load_problem(tmp_path / "spec.toml").experiment("train")
+        assert main(["init", str(tmp_path / "train.csv"), "-o", str(tmp_path / "init.toml"), "--force"]) == 0
+    assert "milliseconds" not in capsys.readouterr().err
 
 
 def test_a_spec_data_error_names_its_table(tmp_path, capsys, rng):

@@ -84,8 +84,13 @@ def _with_engine(spec: str, backend: str | None, scheduler: str | None):
 def _init(args) -> int:
     from cvxid.app.starting_spec import init
 
-    path = init(args.data, args.out, args.test, args.time, args.output, args.input, args.dt, args.force,
-                args.time_unit)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", CvxidWarning)
+        path = init(args.data, args.out, args.test, args.time, args.output, args.input, args.dt, args.force,
+                    args.time_unit)
+    for said in caught:  # (what the starting spec's comments say, and the run would not: the time's units)
+        if issubclass(said.category, CvxidWarning):
+            print(f"warning: {said.message}", file=sys.stderr)
     print(f"wrote {path}: run it with `cvxid run {path} --out out/`")
     return 0
 

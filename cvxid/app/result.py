@@ -313,8 +313,8 @@ class RunResult:
             "",
             frame.to_string(float_format=lambda v: f"{v:.5g}", na_rep="–"),  # (significant digits: a mass of
             #                                                              1e-3 reads; – where nothing was estimated)
-            *(["  (–: not estimated by that method: a parameter given in the spec, or an input's delay the "
-               "bootstrap holds)"]
+            *(["  (–: not estimated by that method: a parameter given in the spec, a term held at its sign "
+               "constraint's bound 0 (a warning names it), or an input's delay the bootstrap holds)"]
               if frame.drop(columns=[c for c in ("truth", "error %") if c in frame]).isna().to_numpy().any() else []),
             *([f"  (the bootstrap's spreads, in result.json, are of the equation-error model {apart})"]
               if self.bootstrap is not None and apart else []),

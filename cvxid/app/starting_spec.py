@@ -26,6 +26,7 @@ from cvxid.data.hold import HELD_CHECKED, looks_held
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
+from cvxid.spec.problem import counts_milliseconds
 from cvxid.spec.toml import tomllib
 from scipy.signal import welch
 
@@ -218,6 +219,12 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
             dt *= seconds_per(time_unit)
             how = "--time-unit" if given_unit else "by the column's name"
             reasons.append(f"the time counts {time_unit} ({how}), read as seconds")
+        elif not given_unit and counts_milliseconds(t):
+            said = (f"the time column '{time}' steps by {dt:g} on whole numbers, read as seconds: if it counts "
+                    "milliseconds, write the spec again with --time-unit ms (or set time_unit = \"ms\" in its "
+                    "[data] tables and scale its delay range)")
+            reasons.append(said)
+            warnings.warn(said, CvxidWarning, stacklevel=2)
         if lost is not None:
             reasons.append(f"{int(lost[-1]) + 1 - t.size} rows missing from the time column, loaded as gaps")
             samples = int(lost[-1]) + 1  # (the record's grid: its duration and delay range count the lost rows)

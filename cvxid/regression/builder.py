@@ -171,7 +171,7 @@ class RegressionBuilder:
                 raise CvxidError(
                     f"[model.delay] tau_max = {self.start:g} s is shorter than one sample of experiment '{e.name}' "
                     f"(dt = {e.dt:g} s): no delay can be resolved; raise tau_max, or check the time column's units "
-                    "(seconds)"
+                    f"(seconds: one that counts milliseconds needs [data.{e.name}] time_unit = \"ms\")"
                 )
             e.check_signals([model.input], model.coordinates)
             self._states.append({c: e.output(c) for c in model.coordinates})

@@ -315,11 +315,17 @@ class ProblemSpec:
             velocity = self.fit.velocity  # [fit] velocity names a measured column
         first = self.coordinates[0]
         try:
-            return self._load(which, table, where, inputs, velocity, first)
+            experiment = self._load(which, table, where, inputs, velocity, first)
         except CvxidError as exc:  # the file's own message, and the spec's table that named it
             if velocity == self.fit.velocity and f"no column named '{velocity}'" in str(exc):
                 raise _unknown_velocity(velocity, f"[{where}]'s file has no such column: {exc}") from None
             raise exc if str(exc).startswith("spec:") else CvxidError(f"spec: [{where}] {exc}") from None
+        if "time_unit" not in table and "dt" not in table and counts_milliseconds(experiment.time):
+            warnings.warn(f"[{where}] is sampled every {experiment.dt:g} s over {experiment.duration:g} s: if its "
+                          f"time column counts milliseconds, set [{where}] time_unit = \"ms\" (cvxid reads seconds; "
+                          "read so, every inertia, delay and window is in the wrong units)", CvxidWarning,
+                          stacklevel=2)
+        return experiment
 
     def _load(self, which: str, table: Table, where: str, inputs: list[str], velocity, first: str) -> Experiment:
         return load(
@@ -353,6 +359,14 @@ class ProblemSpec:
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 VELOCITIES = ESTIMATORS + ("measured", "auto")
 """``[fit] velocity`` values that are not a measured column's name."""
+
+
+def counts_milliseconds(time: np.ndarray) -> bool:
+    """Whether a time column read in seconds looks like milliseconds: a step of a second or
+    more on whole numbers (an eleventh outside check's 500 Hz record in ms identified an
+    inertia of 1e6 with no word: only a delay range shorter than a sample was an error)."""
+    step = float(np.median(np.diff(time))) if time.size > 1 else 0.0
+    return step >= 1.0 and bool(np.max(np.abs(time - np.round(time))) <= 1e-6 * step)  # (a uniform grid's rounding)
 
 
 def _unknown_velocity(velocity: str, why: str) -> CvxidError:
