@@ -242,6 +242,28 @@ def test_a_term_the_data_do_not_show_is_named_after_the_polish(tmp_path):
     assert len(said) == 1 and "x^2 (" in said[0] and "x (" not in said[0] and "x' (" not in said[0], warnings
 
 
+def test_a_listed_term_held_at_its_sign_bound_is_named(tmp_path):
+    """An eleventh outside check: sign(x') listed with a sign constraint, the data asking
+    for none, came back 0 with '–' and a footnote saying it was given in the spec.  Here
+    the record's 'friction' pushes (-0.3 sign(x')): the term is held at 0, and the run says
+    which term and why; the other terms are estimated (k within 2 % of 6)."""
+    import json
+
+    from cvxid.app.cli import main
+
+    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+
+    text = ('name = "held"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.8, "x" = 6.0, "sign(x\')" = -0.3 }\n'
+            + TRAIN_SIMULATED + "\n" + TEST_SIMULATED + '\n[model.library]\nterms = ["x", "x\'", "sign(x\')"]\n'
+            '[model.constraints]\nnonnegative = ["x\'\'", "sign(x\')"]\n[fit]\nestimator = "lstsq"\n')
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    said = [w for w in result["warnings"] if "listed in the spec, is 0: held at its sign constraint's bound" in w]
+    assert result["coefficients"]["sign(x')"] == 0.0 and said and said[0].startswith("sign(x')"), result["warnings"]
+    assert abs(result["coefficients"]["x"] / 6.0 - 1) < 0.02, result["coefficients"]
+
+
 def test_a_constant_output_is_refused():
     """A record whose output never moves (a wrong column, a dead sensor) holds nothing to
     identify: an error, not a model with an inertia of 1e24."""

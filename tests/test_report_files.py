@@ -182,3 +182,23 @@ def test_the_delay_profile_figure_names_each_method_and_shades_the_printed_inter
     band = bottom.patches[0]  # (axvspan's; in data x, axes y)
     xs = [band.get_x(), band.get_x() + band.get_width()] if isinstance(band, Rectangle) else band.get_xy()[:, 0]
     assert np.isclose(min(xs), 0.148) and np.isclose(max(xs), 0.325), xs
+
+
+def test_the_final_models_label_names_what_the_stages_after_the_loop_changed():
+    """An eleventh outside check: the loop added cubic damping, the polish set it to 0 and
+    the diagnosis by simulation error added x'|x'|; the figures' last point read 'final
+    (polished)' after '+ cubic_damping'.  Its label now says both changes; a final model
+    that kept the loop's effects reads as before."""
+    from types import SimpleNamespace as Of
+
+    from cvxid.app.report import _final_label
+    from cvxid.diagnosis.refine import FINAL
+
+    loop = Of(steps=[Of(added="cubic_damping", columns=["x'^3"]), Of(added="cubic_stiffness", columns=["x^3"])])
+    later = Of(steps=[Of(added="quadratic_damping", kept=True), Of(added="offset", kept=False)])
+    swapped = Of(refinement=loop, simulation_refinement=later, polish=object(),
+                 system=Of(coefficients={"x'^3": 0.0, "x^3": 2.03, "x'|x'|": 0.4996}))
+    assert _final_label(swapped) == f"{FINAL}:\n+ quadratic_damping, \u2212 cubic_damping"
+    kept = Of(refinement=loop, simulation_refinement=None, polish=object(),
+              system=Of(coefficients={"x'^3": 0.1, "x^3": 2.03}))
+    assert _final_label(kept) == FINAL

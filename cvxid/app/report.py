@@ -42,6 +42,18 @@ def coupled_fit_figure(compared: dict):
                               f"free-run fit {fits}\ninitial state estimated (in brackets: from the record's own start)")
 
 
+def _final_label(result) -> str:
+    """The final model's label in the refinement's figures: the effects the diagnosis by
+    simulation error added, and those of the loop the polish set to 0."""
+    from cvxid.diagnosis.refine import final_label
+
+    later = result.simulation_refinement
+    added = [s.added for s in later.steps if s.kept] if later is not None else []
+    coefficients = result.system.coefficients
+    removed = [s.added for s in result.refinement.steps if all(coefficients.get(c, 0.0) == 0.0 for c in s.columns)]
+    return final_label(added, removed) if result.polish is not None else final_label()
+
+
 def prepare_folder(out) -> Path:
     """The output folder, created if needed and checked writable (a clear error when it
     cannot be), before any file is written."""
@@ -137,8 +149,8 @@ def write_report(result, out) -> tuple[Path, str | None]:
             (result.tau or {}).get("interval") if result.polish is not None else None))
         if equation.profile is not None else None,
         "diagnosis": result.diagnosis.plot if result.diagnosis is not None else None,
-        "refinement": (lambda: result.refinement.plot(final, result.test_mse)) if added else None,
-        "responses": (lambda: result.refinement.plot_responses(final)) if added else None,
+        "refinement": (lambda: result.refinement.plot(final, result.test_mse, _final_label(result))) if added else None,
+        "responses": (lambda: result.refinement.plot_responses(final, _final_label(result))) if added else None,
         "residuals": (lambda: result.refinement.plot_residuals(result.test)) if added else None,
         "orders": result.order_search.plot if result.order_search is not None else None,
     }
