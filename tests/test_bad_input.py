@@ -497,6 +497,19 @@ def test_a_time_column_in_milliseconds_without_a_delay_is_said(tmp_path, capsys,
     assert "milliseconds" not in capsys.readouterr().err
 
 
+def test_a_model_coordinate_the_data_do_not_name_is_the_error_not_its_terms(tmp_path, capsys, rng):
+    """An eleventh outside check: [model] coordinate = "y" beside output = { x = "x" } was
+    refused as the term 'x', listing the velocities as (x'); the mismatch is now the error,
+    with both fixes; a term of another name lists the coordinate's own velocity."""
+    _delayed_record(tmp_path, rng)
+    spec = DELAYED.format(tau_max=0.3).replace('file = "train.csv"', 'file = "train.csv"\noutput = { x = "x" }')
+    err = cli_error(tmp_path, capsys, spec.replace('[model.library]', '[model]\ncoordinate = "y"\n[model.library]'))
+    assert '[model] coordinate = "y" is not an output of [data.train], whose output table names x' in err, err
+    assert 'output = { y = "x" }' in err, err
+    err = cli_error(tmp_path, capsys, spec.replace('terms = ["x", "x\'"]', 'terms = ["x", "z"]'))
+    assert "term 'z': the name 'z' is not allowed" in err and "their velocities (x')" in err, err
+
+
 def test_a_spec_data_error_names_its_table(tmp_path, capsys, rng):
     _delayed_record(tmp_path, rng)
     err = cli_error(tmp_path, capsys, DELAYED.format(tau_max=0.3).replace('file = "train.csv"',

@@ -154,9 +154,10 @@ def _compile(node, raw: str, coordinates, ops: list, args: list, symbols: set) -
         args.append(float(arg))
 
     def refuse(what: str):
+        velocities = ", ".join(f"{c}'" for c in coordinates)
         raise CvxidError(
             f"term '{raw}': {what} is not allowed; a term is built from numbers, the coordinates "
-            f"({', '.join(coordinates)}) and their velocities (x'), + - * / ^ and the functions "
+            f"({', '.join(coordinates)}) and their velocities ({velocities}), + - * / ^ and the functions "
             f"{', '.join(FUNCTIONS)}")
 
     if isinstance(node, ast.Constant):

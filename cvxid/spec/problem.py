@@ -396,6 +396,7 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
         )
     name = _string(raw, "name", "", default_name)
     model_table = _table(raw, "model", "", MODEL_KEYS, required=True)
+    _check_coordinate(model_table, raw.get("data"))
     model, polynomial = _model(model_table)
     ties = ties_of(model_table, model.column_names, "as the terms, e.g. \"x'\"")
     fit = _fit(_table(raw, "fit", "", FIT_KEYS))
@@ -409,6 +410,22 @@ def parse_single_problem(raw: Table, folder: Path, default_name: str = "problem"
     return ProblemSpec(name, folder, SystemSpec({model.coordinate: model}, ties), fit, data, truth,
                        str(raw.get("description", "")), {} if polynomial is None else {model.coordinate: polynomial},
                        diag)
+
+
+def _check_coordinate(model: Table, data) -> None:
+    """The model's coordinate among the outputs each ``[data]`` table names (an eleventh
+    outside check's ``coordinate = "y"`` beside ``output = { x = "x" }`` was refused as the
+    term ``x``, not as the mismatch it was)."""
+    coordinate = model.get("coordinate", "x")
+    for which, table in (data or {}).items() if isinstance(data, Mapping) else ():
+        outputs = table.get("output") if isinstance(table, Mapping) else None
+        if isinstance(outputs, Mapping) and outputs and coordinate not in outputs:
+            named = ", ".join(map(str, outputs))
+            raise CvxidError(
+                f"spec: [model] coordinate = \"{coordinate}\" is not an output of [data.{which}], whose output "
+                f"table names {named}: write the model in the data's coordinate ([model] coordinate = \"{named}\" "
+                f"and terms of it), or name the column for it (output = {{ {coordinate} = "
+                f"\"{next(iter(outputs.values()))}\" }})")
 
 
 def check_selection(fit: FitSettings, equations: dict[str, ModelSpec], polynomials: dict) -> None:
