@@ -105,7 +105,7 @@ class IdentifiedModel:
         accel = latex_symbol(self.spec.coordinate + "''")
         lhs = f"{float(system.mass):.6g}\\,{accel}"
         for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
-            lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}\\,{term.latex}"
+            lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}" + ("" if term.name == "1" else f"\\,{term.latex}")
         rhs = self.spec.input_text()
         if system.gain:
             gain, signal = float(system.gain), latex_symbol(self.spec.delay.signal)

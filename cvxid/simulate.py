@@ -146,7 +146,7 @@ class System:
         coefs = np.atleast_2d(self.coefficients)[0]
         lhs = f"{float(np.ravel(self.mass)[0]):.6g} {self.coordinate}''"
         for t, c in zip(self.terms, coefs):
-            lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g} {t.name}"
+            lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}" + ("" if t.name == "1" else f" {t.name}")  # (an offset)
         rhs = "f"
         gain = float(np.ravel(self.gain)[0])
         if gain:

@@ -20,7 +20,9 @@ compiled integrator, so a Jacobian costs about one simulation's Python overhead.
 (:mod:`cvxid.regression.history`) every simulation starts at :math:`t_0 + \tau_{\max}` from
 the measured past, so the simulation error is smooth in :math:`\tau` and so is its
 derivative.  The simulation uses a step of about ``step``
-seconds (a whole number of samples), which keeps RK4 accurate while the record is long.
+seconds (a whole number of samples), which keeps RK4 accurate while the record is long,
+and is compared with every measured sample, interpolated between its steps
+(:func:`between_steps`).
 Standard errors come from the Jacobian at the optimum, :math:`\sigma^2 (J^T J)^{-1}\, n/n_{\rm eff}`,
 where :math:`n_{\rm eff}` counts the independent residuals (their autocorrelation, as in
 the delay profile): a model error or a smoothed measurement colours the residual, and
@@ -105,7 +107,8 @@ towards the best is fitted again from that neighbour (a walk that started far fr
 data, e.g. from a runaway gain, leaves stranded fits behind it)."""
 
 MIN_COMPARED = 2000
-"""The fewest samples the coarse fits (the delay profile, the stepwise search) compare:
+"""The fewest steps the coarse fits (the delay profile, the stepwise search) simulate (they
+compare every sample, :func:`between_steps`; before, only the steps' own samples):
 their step of about ``coarse_step`` seconds is a cost cap for a densely sampled record,
 not a time scale of the plant, and in a plant 100 times faster than a second (0.12 s
 records at 100 kHz) it kept 120 samples, the intervals four times wider; 1,000 times
@@ -274,13 +277,33 @@ def _shortest(system: IdentifiedSystem) -> float:
     return 2 * history_seconds(next(iter(system.specs.values())))
 
 
+PROFILE_PHASE = 0.05
+"""The phase :math:`\omega_{95} h` of one step of the polish's coarse fits (the delay
+profile, the first fit) at the records' band edge (RK4's error there about
+:math:`(\omega h)^5/120` a step); their step was 1 ms whatever the plant: every sample of
+a 1 kHz record, 60 s of a plant with a 5 s period took 57 s to polish (an eleventh outside
+check).  The last fit is at the sample step."""
+
+
+def profile_step(system: IdentifiedSystem, experiments: list[Experiment]) -> float:
+    r"""The polish's coarse step for ``experiments``: :data:`PROFILE_PHASE` over the
+    highest band edge of the coordinates' records (:func:`~cvxid.metrics.band_period`), at
+    least the sample step (the fits simulate at least :data:`MIN_COMPARED` steps whatever
+    it is, :func:`_stride`).  On the held-out diagnosis benchmark (100 systems, report
+    seeds) the estimates and intervals were those of the 1 ms step within a few digits,
+    the benchmark 31 % faster."""
+    period = min(band_period([e.output(c) for c in system.coordinates], e.dt) for e in experiments)
+    return max(experiments[0].dt, PROFILE_PHASE * period / (2 * np.pi))
+
+
 @one_blas_thread
-def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float = 1e-3, final: bool = True,
-           max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
+def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float | None = None,
+           final: bool = True, max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
            initial=None) -> PolishResult:
     """Output-error polish.  With a fed-back delay, first its profile: the simulation
     error refitted at ``grid`` delays across ``[tau_min, tau_max]`` (each fit warm-started
-    from its neighbour, on a simulation step of about ``coarse_step``) and on a finer grid
+    from its neighbour, on a simulation step of about ``coarse_step``, by default
+    :func:`profile_step` of the records) and on a finer grid
     around the best; then every parameter from the best delay, refined at the sample step
     with ``final_iterations`` more (unless ``final`` is false), and again from a profile
     point that the profile's refined edges find to fit better (:data:`RESTARTS`).
@@ -289,6 +312,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     start = time.perf_counter()
     system, given = IdentifiedSystem.of(fitted), initial
     experiments = _experiments(experiments, _shortest(system))
+    coarse_step = profile_step(system, experiments) if coarse_step is None else coarse_step
     start_from = without_cancelling_gain(system) if grid else system
     points = _delay_profile(start_from, experiments, initial, coarse_step, grid) if grid else {}
     if points:
@@ -910,6 +934,23 @@ def _problem_at(fitted, experiments, initial, step) -> "_Problem":
     return _Problem(system, experiments, step or experiments[0].dt, initial)
 
 
+def between_steps(X: np.ndarray, V: np.ndarray, stride: int, h: float) -> np.ndarray:
+    r"""Positions ``X`` ``(m, C, B)`` at steps of ``h``, with their velocities ``V``, at
+    every sample between them (``stride`` samples a step; ``(stride (m - 1) + 1, C, B)``)
+    by the cubic Hermite interpolant, whose error, :math:`(\omega h)^4/384` of the motion,
+    is below RK4's own.  A coarse simulation is so compared with every measured sample:
+    compared at its steps alone, the delay profile of 8 s records at a 4 ms step lost three
+    quarters of the data, and on held-out systems whose delay is weakly determined it
+    moved to another basin."""
+    if stride == 1:
+        return X
+    theta = (np.arange(stride) / stride)[None, :, None, None]
+    t2, t3 = theta * theta, theta**3
+    inner = ((2 * t3 - 3 * t2 + 1) * X[:-1, None] + (t3 - 2 * t2 + theta) * h * V[:-1, None]
+             + (3 * t2 - 2 * t3) * X[1:, None] + (t3 - t2) * h * V[1:, None])
+    return np.concatenate([inner.reshape(-1, *X.shape[1:]), X[-1:]])
+
+
 def _rooted(tied: dict[str, tuple[str, float]]) -> dict[str, tuple[str, float]]:
     """Ties ``left -> (right, factor)`` with every chain followed to its free end (``a = 2 b``
     and ``b = 3 c`` give ``a = 6 c``): each tied parameter a multiple of a fitted one."""
@@ -948,7 +989,10 @@ class _Problem:
         for e, k in zip(experiments, self.starts):
             if e.time[k::self.stride].size < 20:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
-        compared = (np.column_stack([m[c][k::self.stride] for c in self.coordinates]) for m, k in zip(measured, self.starts))
+        # every sample from the start to the last simulated step is compared (between steps, by interpolation)
+        self.spans = [self.stride * (e.time[k::self.stride].size - 1) + 1 for e, k in zip(experiments, self.starts)]
+        compared = (np.column_stack([m[c][k:k + n] for c in self.coordinates])
+                    for m, k, n in zip(measured, self.starts, self.spans))
         self.measured = [None if seen.all() else seen for seen in compared]  # (samples, coordinates); None: every one
         largest = max(float(np.nanmax(np.abs(e.output(c)), initial=0.0)) for e in experiments for c in self.coordinates)
         self.wall = DIVERGED * max(1.0, largest)  # a diverged simulation's residual (:data:`DIVERGED`)
@@ -1086,16 +1130,17 @@ class _Problem:
         delayed = self.coordinates.index(self.delay.coordinate) if self.delay is not None else 0
         out = []
         for i, e in enumerate(self.experiments):
-            k = self.starts[i]
-            t = e.time[k::self.stride]
+            k, n = self.starts[i], self.spans[i]
+            t = e.time[k:k + n:self.stride]
             x0 = np.array([values[self._state(c, i, 0)] for c in self.coordinates])
             v0 = np.array([values[self._state(c, i, 1)] for c in self.coordinates])
-            Y = np.column_stack([e.output(c)[k::self.stride] for c in self.coordinates])
+            Y = np.column_stack([e.output(c)[k:k + n] for c in self.coordinates])
             seen = self.measured[i]
             try:
-                X, _ = integrate(
+                X, V = integrate(
                     t, self._forces(i, t, values, B), self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
+                X = between_steps(X, V, self.stride, e.dt * self.stride)
                 out.append((X - Y[:, :, None]).reshape(-1, B) if seen is None else (X - Y[:, :, None])[seen])
             except SimulationDiverged:
                 out.append(np.full((Y.size if seen is None else int(seen.sum()), B), self.wall))
@@ -1105,14 +1150,17 @@ class _Problem:
         """Experiment ``i``'s inputs at the RK4 nodes, ``(S, C, 1)``, or ``(S, C, B)`` when
         the input's delay differs across the batch (read at :math:`t - \\tau_u`; before
         the record, its first sample)."""
-        if self.input_splines is None:  # the same at every call: interpolated once
-            inputs = [e_input[self.starts[i]::self.stride] for e_input in
+        if self.input_splines is None:  # the same at every call: interpolated once, through every sample
+            k, n = self.starts[i], self.spans[i]
+            sampled = self.experiments[i].time[k:k + n]
+            inputs = [e_input[k:k + n] for e_input in
                       (self.experiments[i].input(m.spec.input) for m in self.base.models.values())]
 
             def at_nodes(fine: np.ndarray, h: float) -> np.ndarray:
                 key = (i, h, fine.size)
                 if key not in self._inputs:
-                    self._inputs[key] = np.column_stack([half_steps(u, t, h, fine.size // 2) for u in inputs])[:, :, None]
+                    self._inputs[key] = np.column_stack([half_steps(u, sampled, h, fine.size // 2)
+                                                         for u in inputs])[:, :, None]
                 return self._inputs[key]
 
             return at_nodes
