@@ -297,7 +297,7 @@ def profile_step(system: IdentifiedSystem, experiments: list[Experiment]) -> flo
 
 
 @one_blas_thread
-def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float | None = None,
+def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step: float | Step | None = None,
            final: bool = True, max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
            initial=None) -> PolishResult:
     """Output-error polish.  With a fed-back delay, first its profile: the simulation
@@ -365,7 +365,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
     return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
 
 
-def _finished(fit: PolishResult, experiments, coarse_step: float, final: bool, iterations: int):
+def _finished(fit: PolishResult, experiments, coarse_step: float | Step, final: bool, iterations: int):
     """The polish's last fit from ``fit`` (at the sample step with ``iterations`` more when
     ``final``), and the fit on the delay profile's own simulation step that the profile is
     read against (the last fit itself when the sample step is the profile's step)."""
@@ -430,13 +430,24 @@ TINY = np.finfo(float).tiny
 bound)."""
 
 
-def _stride(step: float, experiments: list[Experiment]) -> int:
+@dataclass(frozen=True)
+class Step:
+    """A fit's simulation step of about ``seconds``, compared with the steps' own samples
+    alone: cheaper where a record is sampled far above its band (the stepwise search's
+    many fits of the paper's 5 kHz record: 6 s a run, 10.5 s comparing every sample).  A
+    step given as a plain number compares every sample (:func:`between_steps`)."""
+
+    seconds: float
+
+
+def _stride(step: float | Step, experiments: list[Experiment]) -> int:
     """Samples per simulation step of about ``step``, at least 1, and at most what leaves
-    :data:`MIN_COMPARED` samples of the records to compare."""
-    return max(1, min(int(round(step / experiments[0].dt)), sum(e.n for e in experiments) // MIN_COMPARED))
+    :data:`MIN_COMPARED` steps in the records."""
+    seconds = step.seconds if isinstance(step, Step) else step
+    return max(1, min(int(round(seconds / experiments[0].dt)), sum(e.n for e in experiments) // MIN_COMPARED))
 
 
-def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step: float) -> PolishResult | None:
+def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step: float | Step) -> PolishResult | None:
     """The profile's fit at the fixed delay ``tau``, started from ``origin`` (a neighbour's
     fit) and ``states``; where that start's simulation diverges (its estimated gain unstable
     at this delay), started again from its net model with a small gain
@@ -460,7 +471,7 @@ def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step
     return fit
 
 
-def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float, grid: int) -> dict:
+def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float | Step, grid: int) -> dict:
     """Delay -> (simulation RMS, fit) with every other parameter refitted, on ``grid``
     delays across the delay's range walked outwards from the estimate (each fit starts from
     its neighbour's, :func:`_profile_fit`), the stranded ones refitted from their
@@ -571,7 +582,7 @@ def _inside(points: dict, best: PolishResult, level: float = 0.95):
     return taus, rms, bound, np.flatnonzero(rms**2 <= bound)  # (the least point at least)
 
 
-def _resolve_edges(points: dict, best: PolishResult, experiments, step: float) -> None:
+def _resolve_edges(points: dict, best: PolishResult, experiments, step: float | Step) -> None:
     """Add profile points (:func:`_profile_fit`, from the nearest point inside) halfway
     between each edge of the interval's inside points and its outside neighbour until they
     are at most :data:`EDGE_RESOLUTION` of the interval's width apart and the outside one
@@ -687,7 +698,7 @@ def with_tau(fitted: IdentifiedModel | IdentifiedSystem, tau: float):
 
 
 @one_blas_thread
-def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float = 1e-3,
+def output_error(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None, step: float | Step = 1e-3,
                  max_iterations: int = 30, fixed_tau: float | None = None, input_noise: bool = False) -> PolishResult:
     """Polish ``fitted`` on ``experiments`` by output error from its own delay (see the
     module docstring; :func:`polish` profiles the delay first).  ``initial``: each
@@ -869,7 +880,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
     except np.linalg.LinAlgError:
         return None
     rng = np.random.default_rng(0)
-    step = experiments[0].dt * problem.stride
+    step = experiments[0].dt * problem.stride if problem.every else Step(experiments[0].dt * problem.stride)
     moves = []
     for _ in range(draws):
         noisy = [replace(e, inputs={**e.inputs, **{name: e.inputs[name] + level * rng.standard_normal(e.time.size)
@@ -886,7 +897,7 @@ def input_noise_covariance(problem: "_Problem", theta: np.ndarray, residual: np.
 
 
 def linearisation(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
-                  step: float | None = None, pressed: bool = True) -> tuple[list[str], np.ndarray, np.ndarray]:
+                  step: float | Step | None = None, pressed: bool = True) -> tuple[list[str], np.ndarray, np.ndarray]:
     """The simulation residual at ``fitted``'s own parameters and its forward-difference
     Jacobian, with the parameters' names (as :func:`output_error` names them): one batch
     of simulations.  ``step``: the simulation step (the sample step by default).
@@ -967,7 +978,7 @@ def _rooted(tied: dict[str, tuple[str, float]]) -> dict[str, tuple[str, float]]:
 class _Problem:
     """Parameters ↔ simulations of the system for :func:`output_error`."""
 
-    def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float, initial,
+    def __init__(self, system: IdentifiedSystem, experiments: list[Experiment], step: float | Step, initial,
                  fixed_tau: float | None = None):
         self.records = experiments  # (as given: a gap of the outputs is compared where measured)
         measured = [{c: np.isfinite(e.output(c)) for c in system.coordinates} for e in experiments]
@@ -976,6 +987,7 @@ class _Problem:
         self._inputs: dict[tuple, np.ndarray] = {}  # each experiment's inputs at the RK4 nodes
         self.one = system.single is not None
         self.stride = _stride(step, experiments)
+        self.every = not isinstance(step, Step)  # every sample compared (else the steps' own)
         self.systems = {label: m.system() for label, m in system.models.items()}
         self.coordinates = system.coordinates
         gains = [float(s.gain) for s in self.systems.values()]
@@ -991,7 +1003,8 @@ class _Problem:
                 raise CvxidError(f"experiment '{e.name}' is too short for the output-error polish")
         # every sample from the start to the last simulated step is compared (between steps, by interpolation)
         self.spans = [self.stride * (e.time[k::self.stride].size - 1) + 1 for e, k in zip(experiments, self.starts)]
-        compared = (np.column_stack([m[c][k:k + n] for c in self.coordinates])
+        self.compared = 1 if self.every else self.stride  # (samples a comparison steps over)
+        compared = (np.column_stack([m[c][k:k + n:self.compared] for c in self.coordinates])
                     for m, k, n in zip(measured, self.starts, self.spans))
         self.measured = [None if seen.all() else seen for seen in compared]  # (samples, coordinates); None: every one
         largest = max(float(np.nanmax(np.abs(e.output(c)), initial=0.0)) for e in experiments for c in self.coordinates)
@@ -1134,13 +1147,13 @@ class _Problem:
             t = e.time[k:k + n:self.stride]
             x0 = np.array([values[self._state(c, i, 0)] for c in self.coordinates])
             v0 = np.array([values[self._state(c, i, 1)] for c in self.coordinates])
-            Y = np.column_stack([e.output(c)[k:k + n] for c in self.coordinates])
+            Y = np.column_stack([e.output(c)[k:k + n:self.compared] for c in self.coordinates])
             seen = self.measured[i]
             try:
                 X, V = integrate(
                     t, self._forces(i, t, values, B), self.coordinates, terms, coefs, mass, gain, tau, x0, v0, delayed,
                     any_system.derivative, any_system.history, self.substeps[i], past=self.pasts[i])
-                X = between_steps(X, V, self.stride, e.dt * self.stride)
+                X = between_steps(X, V, self.stride, e.dt * self.stride) if self.every else X
                 out.append((X - Y[:, :, None]).reshape(-1, B) if seen is None else (X - Y[:, :, None])[seen])
             except SimulationDiverged:
                 out.append(np.full((Y.size if seen is None else int(seen.sum()), B), self.wall))
@@ -1150,10 +1163,10 @@ class _Problem:
         """Experiment ``i``'s inputs at the RK4 nodes, ``(S, C, 1)``, or ``(S, C, B)`` when
         the input's delay differs across the batch (read at :math:`t - \\tau_u`; before
         the record, its first sample)."""
-        if self.input_splines is None:  # the same at every call: interpolated once, through every sample
+        if self.input_splines is None:  # the same at every call: interpolated once, through the compared samples
             k, n = self.starts[i], self.spans[i]
-            sampled = self.experiments[i].time[k:k + n]
-            inputs = [e_input[k:k + n] for e_input in
+            sampled = self.experiments[i].time[k:k + n:self.compared]
+            inputs = [e_input[k:k + n:self.compared] for e_input in
                       (self.experiments[i].input(m.spec.input) for m in self.base.models.values())]
 
             def at_nodes(fine: np.ndarray, h: float) -> np.ndarray:

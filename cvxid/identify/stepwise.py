@@ -15,7 +15,9 @@ coordinates simulated together).  The search starts from a local output-error
 fit of the base terms at the equation-error delay.  Each candidate support starts from its own
 equation-error fit (the convex least squares on the same regression, which lands close
 enough for a local output-error fit) and is polished by :func:`cvxid.identify.output_error.output_error`
-on a coarse simulation step.
+on a coarse simulation step, compared with the steps' own samples
+(:class:`~cvxid.identify.output_error.Step`: its many fits of a record sampled far above
+its band would cost half again as much compared with every sample).
 
 * **Forward**: from the base terms, add the term that lowers :math:`J` most, while it falls
   by at least ``min_gain``.
@@ -55,7 +57,7 @@ from joblib import Parallel, delayed
 from cvxid.data.experiment import Experiment
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.identify.output_error import PolishResult, linearisation, output_error, polish, with_tau
+from cvxid.identify.output_error import PolishResult, Step, linearisation, output_error, polish, with_tau
 from cvxid.identify.score import block_score_gain, score_gains
 from cvxid.identify.problem import Problem
 from cvxid.identify.profile import profile_delay
@@ -182,7 +184,7 @@ def _polished(fit, train: Experiment, step: float, rows: list[dict], schedule: d
     :func:`~cvxid.identify.output_error.polish`), the step recorded in ``rows``."""
     with warnings.catch_warnings():  # a start outside the bounds is the search's own, not the user's
         warnings.simplefilter("ignore", CvxidWarning)
-        final = polish(fit.system, train, initial=fit.initial, **{"coarse_step": step, **(schedule or {})})
+        final = polish(fit.system, train, initial=fit.initial, **{"coarse_step": Step(step), **(schedule or {})})
     action = "polish (delay profiled) at the sample step" if final.profile is not None else "polish at the sample step"
     rows.append({"step": len(rows), "action": action, "term": "", "columns": [], "rms": final.rms_after})
     return final
@@ -229,7 +231,7 @@ def _screen(system: SystemSpec, fit, candidates: list[str], members: dict[str, t
     seeded = _system_of(models, wider.ties)
     with warnings.catch_warnings():  # as the trial fits: an early (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)
-        names, r, J = linearisation(seeded, train, fit.initial, step, pressed=False)  # (candidates sit at 0)
+        names, r, J = linearisation(seeded, train, fit.initial, Step(step), pressed=False)  # (candidates sit at 0)
     present = {k: [c for c in members[k] if parameter_of(seeded, c) in names] for k in candidates}  # (a tie leaves
     params = {k: [names.index(parameter_of(seeded, c)) for c in present[k]] for k in candidates}  # one of a unit's)
     others = np.delete(J, [i for k in candidates for i in params[k]], axis=1)
@@ -275,7 +277,7 @@ def _trial(system: IdentifiedSystem, experiment: Experiment, step: float, iterat
     try:
         with warnings.catch_warnings():  # trial fits: their intermediate delays may be anything
             warnings.simplefilter("ignore", CvxidWarning)
-            fit = output_error(system, experiment, step=step, max_iterations=iterations)
+            fit = output_error(system, experiment, step=Step(step), max_iterations=iterations)
     except CvxidError:
         return None, np.inf
     return fit, fit.rms_after if np.isfinite(fit.rms_after) else np.inf
@@ -362,7 +364,7 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
                             ties=system.ties).estimate
     with warnings.catch_warnings():  # the base fit's first (Taylor) delay may have the wrong sign
         warnings.simplefilter("ignore", CvxidWarning)
-        fit = output_error(_start(system, rows.at(tau), _flat(base, members), tau), train, step=step,
+        fit = output_error(_start(system, rows.at(tau), _flat(base, members), tau), train, step=Step(step),
                            max_iterations=25)
     current, rms = list(base), fit.rms_after
     history = [{"step": 0, "action": "start", "term": ", ".join(_flat(base, members)) or "(none)",
