@@ -202,3 +202,6 @@ def test_the_final_models_label_names_what_the_stages_after_the_loop_changed():
     kept = Of(refinement=loop, simulation_refinement=None, polish=object(),
               system=Of(coefficients={"x'^3": 0.1, "x^3": 2.03}))
     assert _final_label(kept) == FINAL
+    delay = Of(refinement=Of(steps=[Of(added="delay", columns=())]), simulation_refinement=None, polish=object(),
+               system=Of(coefficients={}))
+    assert _final_label(delay) == FINAL  # (a delay estimated again adds no column, and is not removed)

@@ -314,3 +314,15 @@ def test_dry_friction_of_systems_drawn_at_random_is_integrated_below_the_noise(e
         coarse, _ = simulate(oscillator.system, t, oscillator.train, 0.0, 0.0)
         fine, _ = simulate(oscillator.system, t, oscillator.train, 0.0, 0.0, substeps=64)
         assert np.max(np.abs(coarse - fine)[skip:]) < 1e-3 * 0.01
+
+
+def test_an_offset_prints_as_a_number_not_times_one():
+    """An eleventh outside check read '- 0.165412 1' in an equation: the constant term
+    prints as its coefficient alone, in text and in LaTeX."""
+    from cvxid.identified import IdentifiedModel
+    from cvxid.model.equation import ModelSpec
+    from cvxid.model.library import Library
+
+    model = IdentifiedModel(ModelSpec(Library([parse_term("x"), parse_term("1")])), {"x''": 1.0, "x": 6.0, "1": -0.165})
+    assert model.equation() == "1 x'' + 6 x - 0.165 = f", model.equation()
+    assert model.equation_latex().endswith("+ 6\\,x - 0.165 = f"), model.equation_latex()

@@ -185,3 +185,22 @@ def test_the_pruning_keeps_a_column_tied_outside_the_library_and_reports_columns
     assert coefficients["x'^3"] == pytest.approx(0.001 * coefficients["x''"], rel=1e-9) and coefficients["x'^3"] != 0
     history = pd.DataFrame([{"action": "remove", "term": "x^3 = x^5", "columns": ["x^3", "x^5"]}])
     assert Pruning(history, 0.0, 0.0, None).removed == ["x^3", "x^5"]
+
+
+def test_the_last_polish_of_the_search_and_of_the_pruning_compares_every_sample(monkeypatch):
+    """A review: the search's last polish (and the pruning's), whose intervals are printed,
+    was given the search's own step compared at the steps' samples (``Step``): on 8 s at
+    5 kHz its x' and m intervals were 2.15 times as wide as the run's polish gives.  It is
+    now polished as the run's polish is: no ``Step`` reaches it."""
+    from cvxid.identify import stepwise
+    from cvxid.identify.output_error import Step
+
+    from types import SimpleNamespace
+
+    given, polished = [], SimpleNamespace(profile=None, rms_after=0.01)
+    monkeypatch.setattr(stepwise, "polish", lambda system, train, **kw: given.append(kw) or polished)
+    fit = SimpleNamespace(system=None, initial=None)
+    assert stepwise._polished(fit, None, [], None) is polished
+    assert stepwise._polished(fit, None, [], {"coarse_step": 4e-3, "grid": 0}) is polished
+    assert not any(isinstance(v, Step) for kw in given for v in kw.values()), given
+    assert given[1]["coarse_step"] == 4e-3 and "coarse_step" not in given[0]

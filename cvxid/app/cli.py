@@ -91,6 +91,8 @@ def _init(args) -> int:
     for said in caught:  # (what the starting spec's comments say, and the run would not: the time's units)
         if issubclass(said.category, CvxidWarning):
             print(f"warning: {said.message}", file=sys.stderr)
+        else:  # (a reader's or numpy's own, as without the record)
+            warnings.showwarning(said.message, said.category, said.filename, said.lineno)
     print(f"wrote {path}: run it with `cvxid run {path} --out out/`")
     return 0
 

@@ -50,7 +50,8 @@ def _final_label(result) -> str:
     later = result.simulation_refinement
     added = [s.added for s in later.steps if s.kept] if later is not None else []
     coefficients = result.system.coefficients
-    removed = [s.added for s in result.refinement.steps if all(coefficients.get(c, 0.0) == 0.0 for c in s.columns)]
+    removed = [s.added for s in result.refinement.steps  # (a delay estimated again adds no column: not removed)
+               if s.columns and all(coefficients.get(c, 0.0) == 0.0 for c in s.columns)]
     return final_label(added, removed) if result.polish is not None else final_label()
 
 

@@ -245,10 +245,14 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         # from 0 feeds back, and its delay at the top may be longer: an outside check's 1.6 s, 0.46.  An eleventh
         # check's dead zone on the feedback, outside the catalogue: tau 0.5 [0.23, 0.5] for 0.15 and a softening
         # x^3 added, said only by the gain's warning)
+        reaches = (f"the delay tau = {estimate:.4g} s sits at" if _at_top(estimate, delay) else
+                   f"the delay's 95 % interval ({interval[0]:.4g} … {interval[1]:.4g} s) reaches" if interval else "")
+        added = _added_effects(out)
         text = None if interval is None or interval[0] <= 0 else (  # (reaching 0: the gain's warning says it all)
-            f"the delay tau = {estimate:.4g} s sits at the top of its search range (tau_max = {delay.tau_max:g} "
-                "s): with the feedback gain not determined (above) that is the range's bound, not a measured delay, "
-                "and its interval is no interval for the true one" + _stand_ins(out))
+            f"{reaches} the top of its search range (tau_max = {delay.tau_max:g} s): with the feedback gain not "
+            "determined (above) that is the range's bound, not a measured delay, and the interval is no interval for "
+            "the true one" + (f"; the diagnosis added {', '.join(added)}, which may stand in for the fed-back signal: "
+                              "compare the fits without " + ("it" if len(added) == 1 else "them") if added else ""))
     elif top and gain is not None and gain[0] <= 0 <= gain[1]:
         text = (
             f"the delay tau = {estimate:.4g} s is at the top of its search range and the feedback gain's 95 % "
@@ -282,13 +286,18 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         warnings.warn(text + _added_delay_note(out), CvxidWarning, stacklevel=2)
 
 
+def _added_effects(out: RunResult) -> list[str]:
+    """The terms the diagnosis added, by equation error and by simulation error."""
+    added = [s.term for s in (out.refinement.steps if out.refinement is not None else [])]
+    return added + [s.term for s in (out.simulation_refinement.steps if out.simulation_refinement is not None else [])
+                    if s.kept]
+
+
 def _stand_ins(out: RunResult) -> str:
     """For a delay held at the top of its range: the effects the diagnosis added, which may
     stand in for the longer delay (an outside check's delay of 4 s, searched up to 0.5 s,
     had a Coulomb friction added beside it), else nothing."""
-    added = [s.term for s in (out.refinement.steps if out.refinement is not None else [])]
-    added += [s.term for s in (out.simulation_refinement.steps if out.simulation_refinement is not None else [])
-              if s.kept]
+    added = _added_effects(out)
     if not added:
         return ""
     return (f"; the diagnosis added {', '.join(added)}, which may stand in for the longer delay: run again with the "
@@ -346,7 +355,8 @@ def _warn_implausible(out: RunResult) -> None:
                 f"), that '{spec.input}' is the signal that drives '{spec.coordinate}' (not a "
                 "command the actuator saturates or lags), and the time column's unit" + _longer(spec), CvxidWarning,
                 stacklevel=2)
-        held = [n for n in model.spec.listed if n in model.spec.nonnegative
+        own = out.spec.equations.get(label)  # (the spec's own: the diagnosis lists and signs what it adds)
+        held = [n for n in (own.listed if own is not None else ()) if n in own.nonnegative
                 and out.system.coefficients.get(out.system.column(label, n), 0.0) == 0.0]
         if held:  # (an eleventh outside check: sign(x') listed and constrained, 0 in the model, a footnote saying
             #        it was a parameter given in the spec)

@@ -59,6 +59,9 @@ class Columns:
     held: bool = False
     """Whether the input is level between single-sample jumps, as a command held between
     samples is (:func:`~cvxid.data.hold.looks_held`): the spec offers ``hold = true``."""
+    unit_said: bool = False
+    """Whether the unit was given (``--time-unit``): the spec writes it, even seconds (a step
+    of a second or more on whole numbers is otherwise a warning that it may count ms)."""
 
 
 def _numeric(columns: dict) -> dict[str, np.ndarray]:
@@ -222,7 +225,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         elif not given_unit and counts_milliseconds(t):
             said = (f"the time column '{time}' steps by {dt:g} on whole numbers, read as seconds: if it counts "
                     "milliseconds, write the spec again with --time-unit ms (or set time_unit = \"ms\" in its "
-                    "[data] tables and scale its delay range)")
+                    "[data] tables and scale its delay range); if seconds, --time-unit s says so")
             reasons.append(said)
             warnings.warn(said, CvxidWarning, stacklevel=2)
         if lost is not None:
@@ -235,7 +238,7 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         reasons.append("missing samples in the output or the input, loaded as gaps")
     gaps = gaps or lost is not None
     return Columns(time, output, input, float(dt), samples, "; ".join(reasons), float(median_period), gaps,
-                   time_unit or "s", looks_held(numeric[input][:HELD_CHECKED]))
+                   time_unit or "s", looks_held(numeric[input][:HELD_CHECKED]), given_unit and time is not None)
 
 
 def _relative(path: Path, folder: Path) -> str:
@@ -288,7 +291,7 @@ def _data_table(which: str, file: str, columns: Columns, coordinate: str, force:
     lines = [f"[data.{which}]", f"file = {_quoted(file)}"]
     lines.append(f"time = {_quoted(columns.time)}" if columns.time else f"dt = {columns.dt:g}                       "
                  "# the sample step in seconds (no time column read)")
-    if columns.time_unit != "s":
+    if columns.time_unit != "s" or columns.unit_said:
         lines.append(f'time_unit = "{columns.time_unit}"                # the time column counts {columns.time_unit}: '
                      "cvxid reads it as seconds")
     lines.append(f"output = {{ {coordinate} = {_quoted(columns.output)} }}")

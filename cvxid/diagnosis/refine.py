@@ -139,12 +139,12 @@ class Refinement:
         return [f"start{mark(bool(self.steps) and self.steps[0].polished)}"] + [
             f"+ {s.added}{mark(s.polished)}" for s in self.steps]
 
-    def plot(self, final: dict | None = None, final_mse: float | None = None, final_label: str = None):
+    def plot(self, final: dict | None = None, final_mse: float | None = None, label: str | None = None):
         """The error history: the test record's equation-error MSE and free-run error
         (:math:`1 - \\text{fit}/100`) before and after each added effect, and with
         ``final`` (coordinate → :class:`~cvxid.diagnosis.compare.Comparison` of the run's
         final model, after the output-error polish) and its equation-error MSE a last
-        point for it, labelled ``final_label`` (:func:`final_label`)."""
+        point for it, labelled ``label`` (:func:`final_label`; :data:`FINAL` by default)."""
         from cvxid.plots import refinement_figure
 
         steps = self.steps
@@ -164,7 +164,7 @@ class Refinement:
         fits = [steps[0].fit_before] + [s.fit_after for s in steps]
         last = _drawable(final)
         if last is not None:
-            labels = labels + [final_label or FINAL]
+            labels = labels + [label or FINAL]
             for values in series.values():
                 values.append(np.nan)
             list(series.values())[-1][-1] = np.nan if final_mse is None else final_mse
@@ -173,7 +173,7 @@ class Refinement:
             series["test free-run error (1 - fit)"] = [1.0 - f / 100.0 for f in fits]
         return refinement_figure(labels, series)
 
-    def plot_responses(self, final: dict | None = None, final_label: str = None):
+    def plot_responses(self, final: dict | None = None, label: str | None = None):
         """The test record's free run before and after each added effect, over the
         measurement, one panel each (a column per coordinate; the fit in each title), and
         with ``final`` (coordinate → comparison of the run's final model) a last row for
@@ -187,7 +187,7 @@ class Refinement:
         last = _drawable(final)
         if last is None:
             return responses_figure(self.labels, self.comparisons)
-        return responses_figure(self.labels + [final_label or FINAL], self.comparisons + [last])
+        return responses_figure(self.labels + [label or FINAL], self.comparisons + [last])
 
     def plot_residuals(self, experiment: Experiment, bins: int = 21):
         """Where the starting model fails: each equation's error on ``experiment`` in time and

@@ -107,9 +107,10 @@ towards the best is fitted again from that neighbour (a walk that started far fr
 data, e.g. from a runaway gain, leaves stranded fits behind it)."""
 
 MIN_COMPARED = 2000
-"""The fewest steps the coarse fits (the delay profile, the stepwise search) simulate (they
-compare every sample, :func:`between_steps`; before, only the steps' own samples):
-their step of about ``coarse_step`` seconds is a cost cap for a densely sampled record,
+"""The fewest steps the coarse fits (the polish's delay profile and first fit, the stepwise
+search's) simulate.  The polish's compare every sample (:func:`between_steps`), the
+search's the steps' own (:class:`Step`); when this cap was set, every coarse fit compared
+the steps' own samples, and their step of about ``coarse_step`` seconds was a cost cap for a densely sampled record,
 not a time scale of the plant, and in a plant 100 times faster than a second (0.12 s
 records at 100 kHz) it kept 120 samples, the intervals four times wider; 1,000 times
 faster, 12 samples and every profile fit diverged.  (5,000 made the stepwise search's
@@ -587,11 +588,11 @@ def _resolve_edges(points: dict, best: PolishResult, experiments, step: float | 
     between each edge of the interval's inside points and its outside neighbour until they
     are at most :data:`EDGE_RESOLUTION` of the interval's width apart and the outside one
     at most :data:`EDGE_EXCESS` margins above the bound (at most :data:`BISECTIONS` a
-    side, never closer than two simulation steps): a profile whose points are coarse
+    side, never closer than two samples): a profile whose points are coarse
     against its interval reads the edge from a chord, and on a profile flat over a long
     stretch that ends steeply (a gain that trades with the delay) that chord put the edge
     next to the estimate, far inside."""
-    shortest = _stride(step, experiments) * experiments[0].dt
+    shortest = experiments[0].dt  # (the delay moves smoothly within a step: the samples, not the step, resolve it)
     for side in (-1, 1):
         for _ in range(BISECTIONS):
             taus, rms, bound, inside = _inside(points, best)
@@ -933,7 +934,7 @@ def _linearise(problem: "_Problem") -> tuple[np.ndarray, np.ndarray]:
 
 
 def residual(fitted: IdentifiedModel | IdentifiedSystem, experiments, initial=None,
-             step: float | None = None) -> np.ndarray:
+             step: float | Step | None = None) -> np.ndarray:
     """The simulation residual of :func:`linearisation` alone (one simulation)."""
     problem = _problem_at(fitted, experiments, initial, step)
     return problem.residuals(problem.start[None, :])[:, 0]

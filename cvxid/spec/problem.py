@@ -323,7 +323,8 @@ class ProblemSpec:
         if "time_unit" not in table and "dt" not in table and counts_milliseconds(experiment.time):
             warnings.warn(f"[{where}] is sampled every {experiment.dt:g} s over {experiment.duration:g} s: if its "
                           f"time column counts milliseconds, set [{where}] time_unit = \"ms\" (cvxid reads seconds; "
-                          "read so, every inertia, delay and window is in the wrong units)", CvxidWarning,
+                          "read so, every inertia, delay and window is in the wrong units); if it counts seconds, "
+                          "time_unit = \"s\" says so", CvxidWarning,
                           stacklevel=2)
         return experiment
 
@@ -421,9 +422,10 @@ def _check_coordinate(model: Table, data) -> None:
         outputs = table.get("output") if isinstance(table, Mapping) else None
         if isinstance(outputs, Mapping) and outputs and coordinate not in outputs:
             named = ", ".join(map(str, outputs))
+            which_one = f"\"{named}\"" if len(outputs) == 1 else f"one of {named}"
             raise CvxidError(
                 f"spec: [model] coordinate = \"{coordinate}\" is not an output of [data.{which}], whose output "
-                f"table names {named}: write the model in the data's coordinate ([model] coordinate = \"{named}\" "
+                f"table names {named}: write the model in the data's coordinate ([model] coordinate = {which_one} "
                 f"and terms of it), or name the column for it (output = {{ {coordinate} = "
                 f"\"{next(iter(outputs.values()))}\" }})")
 
