@@ -289,3 +289,31 @@ def test_rows_missing_from_a_uniform_record_become_gaps_when_gaps_are_on():
     slower = np.r_[np.arange(1000) * 1e-3, 1 + np.arange(600) * 2e-3]  # 1 kHz, then 500 Hz: a changed rate
     with pytest.raises(CvxidError, match=r"time is not uniformly sampled \(step 0.002"):  # (a review: read as
         Experiment(slower, {"x": np.sin(slower)}, {"f": np.cos(slower)}, gaps=True)  # 599 rows lost, 40 % dropped)
+
+
+def test_a_records_facts_are_computed_once_while_it_lives_and_never_read_by_another():
+    """The fits of one record share what no parameter changes (cvxid.data.remembered): a
+    fact is computed once per record object and key; a record that is gone takes its facts
+    with it, so a new one (whatever its place in memory) computes its own."""
+    import gc
+
+    from cvxid.data.remembered import _FACTS, remembered
+
+    calls = []
+
+    def fact(value):
+        calls.append(value)
+        return value
+
+    record = Experiment(T, {"x": np.sin(T)}, {"f": np.cos(T)})
+    assert remembered(record, "a", lambda: fact(1)) == 1 and remembered(record, "a", lambda: fact(2)) == 1
+    assert remembered(record, "b", lambda: fact(3)) == 3 and calls == [1, 3]
+    identity = id(record)
+    del record
+    gc.collect()
+    assert identity not in _FACTS
+    for _ in range(20):  # (new records, some perhaps where the old one was)
+        other = Experiment(T, {"x": np.sin(T)}, {"f": np.cos(T)})
+        assert remembered(other, "a", lambda: fact(4)) == 4
+        del other
+    assert calls == [1, 3] + [4] * 20

@@ -55,6 +55,7 @@ from scipy.optimize import least_squares
 from scipy.stats import chi2, norm
 
 from cvxid.data.experiment import Experiment
+from cvxid.data.remembered import remembered
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.profile import DelayProfile, effective_rows
@@ -996,8 +997,13 @@ class _Problem:
         self.delay = delay if delay is not None and any(gains) else None
         self.fixed_tau = fixed_tau if self.delay is not None else None
         history = next(iter(self.systems.values())).history
-        self.starts, self.pasts = zip(*(simulation_start(e, self.delay, history) for e in experiments))
-        self.substeps = [max(substeps_for(e.output(c)[k::self.stride], e.dt * self.stride) for c in self.coordinates)
+        past = None if self.delay is None else (self.delay.tau_max, self.delay.coordinate, self.delay.derivative,
+                                                self.delay.history)
+        self.starts, self.pasts = zip(*(remembered(e, ("start", past, history),
+                                                   lambda e=e: simulation_start(e, self.delay, history))
+                                        for e in experiments))
+        self.substeps = [remembered(e, ("substeps", tuple(self.coordinates), k, self.stride), lambda e=e, k=k: max(
+            substeps_for(e.output(c)[k::self.stride], e.dt * self.stride) for c in self.coordinates))
                          for e, k in zip(experiments, self.starts)]
         for e, k in zip(experiments, self.starts):
             if e.time[k::self.stride].size < 20:
@@ -1011,9 +1017,12 @@ class _Problem:
         largest = max(float(np.nanmax(np.abs(e.output(c)), initial=0.0)) for e in experiments for c in self.coordinates)
         self.wall = DIVERGED * max(1.0, largest)  # a diverged simulation's residual (:data:`DIVERGED`)
         coefficients = system.coefficients
-        periods = [band_period([e.output(c)[k:] for c in self.coordinates], e.dt)
+        periods = [remembered(e, ("period", tuple(self.coordinates), k),
+                              lambda e=e, k=k: band_period([e.output(c)[k:] for c in self.coordinates], e.dt))
                    for e, k in zip(experiments, self.starts)]
-        measured = [typical_states(e, k, self.coordinates, p) for e, k, p in zip(experiments, self.starts, periods)]
+        measured = [remembered(e, ("typical", tuple(self.coordinates), k),
+                               lambda e=e, k=k, p=p: typical_states(e, k, self.coordinates, p))
+                    for e, k, p in zip(experiments, self.starts, periods)]
         typical, period = measured[0], periods[0]
         columns = {}  # system column -> parameter slot
         names, start, lower, gain_names, natural, gain_natural = [], [], [], [], [], []
@@ -1039,7 +1048,8 @@ class _Problem:
                 names.append(self._name(label, spec.parameter_name(term.name), term.name))
                 start.append(float(c))
                 lower.append(0.0 if term.name in spec.nonnegative else -np.inf)  # the spec's signs hold
-                natural.append(force / typical_size(term.evaluate(typical)))
+                natural.append(force / remembered(experiments[0], ("size", term, tuple(self.coordinates), self.starts[0]),
+                                                  lambda term=term: typical_size(term.evaluate(typical))))
             if self.delay is not None and spec.delay.gain is None:
                 gain_names.append(self._name(label, "gain", "gain"))
                 gain_natural.append(force / typical_size(typical[self.delay.coordinate]))
@@ -1066,7 +1076,8 @@ class _Problem:
         for i, e in enumerate(experiments):
             k = self.starts[i]
             guess = initial[i] if initial is not None else {  # at the full sample rate
-                c: initial_state(e.time[k:], e.output(c)[k:]) for c in self.coordinates}
+                c: remembered(e, ("initial", c, k), lambda e=e, c=c, k=k: initial_state(e.time[k:], e.output(c)[k:]))
+                for c in self.coordinates}
             states = measured[i]
             for c in self.coordinates:
                 names += [self._state(c, i, 0), self._state(c, i, 1)]
