@@ -68,12 +68,14 @@ not — and ``q'|q'|``) run compiled; a user's own term runs the same scheme in 
 
 from __future__ import annotations
 
+import sys
 import types
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 from numba import njit, prange
+from numba.core import event as numba_event
 from scipy.interpolate import CubicSpline
 
 from cvxid.errors import CvxidError
@@ -386,6 +388,31 @@ def _hermite(u, h):
     theta = u - off
     t2, t3 = theta * theta, theta**3
     return int(off), 2 * t3 - 3 * t2 + 1, (t3 - 2 * t2 + theta) * h, -2 * t3 + 3 * t2, (t3 - t2) * h
+
+
+class _FirstCompile(numba_event.Listener):
+    """Says once, on a terminal, that cvxid's simulation kernel is being compiled: the first
+    run on a machine spends 20-30 s there with nothing else to show (numba's event API
+    reports compiles, not loads from its on-disk cache, so later runs say nothing)."""
+
+    said = False
+
+    def on_start(self, event) -> None:
+        from cvxid.progress import is_quiet
+
+        dispatcher = event.data.get("dispatcher")
+        if self.said or getattr(getattr(dispatcher, "py_func", None), "__module__", None) != __name__:
+            return
+        self.said = True
+        if not is_quiet() and sys.stderr.isatty():
+            print("cvxid: compiling the simulation kernel for this machine (once: about 25 s; later runs load it "
+                  "from numba's cache)", file=sys.stderr, flush=True)
+
+    def on_end(self, event) -> None:
+        pass
+
+
+numba_event.register("numba:compile", _FirstCompile())
 
 
 # ---------------------------------------------------------------------- term codes

@@ -326,3 +326,38 @@ def test_an_offset_prints_as_a_number_not_times_one():
     model = IdentifiedModel(ModelSpec(Library([parse_term("x"), parse_term("1")])), {"x''": 1.0, "x": 6.0, "1": -0.165})
     assert model.equation() == "1 x'' + 6 x - 0.165 = f", model.equation()
     assert model.equation_latex().endswith("+ 6\\,x - 0.165 = f"), model.equation_latex()
+
+
+def test_the_first_compile_on_a_machine_is_said_once_on_a_terminal(monkeypatch):
+    """A first run compiles the kernel for 20-30 s with nothing to show: numba's compile
+    event of one of cvxid's kernels prints one line on a terminal's stderr, once; another
+    library's compile, a redirected stderr and --quiet print nothing."""
+    import io
+
+    from numba.core.event import Event, EventStatus
+
+    import cvxid.simulate as sim
+    from cvxid.progress import set_quiet
+
+    class Terminal(io.StringIO):
+        def __init__(self, tty: bool):
+            super().__init__()
+            self.tty = tty
+
+        def isatty(self):
+            return self.tty
+
+    def said(tty=True, quiet=False, dispatcher=sim._kernel):
+        listener, stream = sim._FirstCompile(), Terminal(tty)
+        monkeypatch.setattr(sim.sys, "stderr", stream)
+        set_quiet(quiet)
+        try:
+            for _ in range(2):
+                listener.on_start(Event("numba:compile", EventStatus.START, data={"dispatcher": dispatcher}))
+        finally:
+            set_quiet(False)
+        return stream.getvalue()
+
+    assert said().count("compiling the simulation kernel for this machine") == 1
+    assert said(tty=False) == "" and said(quiet=True) == ""
+    assert said(dispatcher=type("Other", (), {"py_func": len})()) == ""
