@@ -108,6 +108,7 @@ def test_run_profile_says_where_the_seconds_went(tmp_path, capsys):
     (tmp_path / "spec.toml").write_text(spec_text(SIMULATED.replace("seed = 1", "seed = 17")))
     assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--profile"]) == 0
     out = capsys.readouterr().out.split("where the seconds went")[1]
+    assert "under Python's profiler, which slows the Python-heavy stages" in out.splitlines()[0]
     rows = {name: float(seconds) for name, seconds, *_ in (re.split(r"\s{2,}", line.strip())
                                                           for line in out.splitlines()[3:] if line.strip())}
     whole = rows.pop("the whole run")

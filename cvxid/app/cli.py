@@ -40,7 +40,10 @@ def _run(args) -> int:
     if path:
         print(f"  wrote {path} and figures" + (f", replacing the files of an earlier run of {replaced}" if replaced else ""))
     if args.profile:
-        print("\nwhere the seconds went (cumulative; nested stages count in each; starting Python is before the run):")
+        print("\nwhere the seconds went (cumulative; nested stages count in each; starting Python is before the run; "
+              "measured under Python's profiler, which slows the Python-heavy stages, the figures and the diagnosis's "
+              "loops, up to about twice and the compiled simulations and solvers not: read the shares, and time the "
+              "run itself without --profile):")
         print(table.to_string(float_format=lambda v: f"{v:.3f}", na_rep="–"))
     return 0
 
