@@ -377,6 +377,13 @@ def hermite_stages(tau: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray]:
     return offs, ws
 
 
+def hermite_weights(fractions: np.ndarray, h: float) -> np.ndarray:
+    """The cubic Hermite weights ``(len, 4)`` of (value, slope, next value, next slope) at
+    the ``fractions`` (in [0, 1)) of a step of length ``h`` (:func:`_hermite`, the
+    integrator's own)."""
+    return np.array([_hermite(float(u), h)[1:] for u in fractions]).reshape(-1, 4)
+
+
 @njit(cache=True, error_model="numpy")
 def _hermite(u, h):
     """The node offset and cubic Hermite weights (value, slope, next value, next slope) of

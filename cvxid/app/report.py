@@ -45,13 +45,11 @@ def coupled_fit_figure(compared: dict):
 def _final_label(result) -> str:
     """The final model's label in the refinement's figures: the effects the diagnosis by
     simulation error added, and those of the loop the polish set to 0."""
-    from cvxid.diagnosis.refine import final_label
+    from cvxid.diagnosis.refine import final_label, zeroed
 
     later = result.simulation_refinement
     added = [s.added for s in later.steps if s.kept] if later is not None else []
-    coefficients = result.system.coefficients
-    removed = [s.added for s in result.refinement.steps  # (a delay estimated again adds no column: not removed)
-               if s.columns and all(coefficients.get(c, 0.0) == 0.0 for c in s.columns)]
+    removed = [s.added for s in zeroed(result.refinement.steps, result.system.coefficients)]
     return final_label(added, removed) if result.polish is not None else final_label()
 
 

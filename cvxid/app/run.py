@@ -28,7 +28,7 @@ from cvxid.data.hold import looks_held
 from cvxid.diagnosis.acceptance import stop_reason
 from cvxid.diagnosis.compare import compare_system
 from cvxid.diagnosis.ranking import diagnose
-from cvxid.diagnosis.refine import refine
+from cvxid.diagnosis.refine import refine, zeroed
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
@@ -245,11 +245,11 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         # from 0 feeds back, and its delay at the top may be longer: an outside check's 1.6 s, 0.46.  An eleventh
         # check's dead zone on the feedback, outside the catalogue: tau 0.5 [0.23, 0.5] for 0.15 and a softening
         # x^3 added, said only by the gain's warning)
-        reaches = (f"the delay tau = {estimate:.4g} s sits at" if _at_top(estimate, delay) else
-                   f"the delay's 95 % interval ({interval[0]:.4g} … {interval[1]:.4g} s) reaches" if interval else "")
         added = _added_effects(out)
         text = None if interval is None or interval[0] <= 0 else (  # (reaching 0: the gain's warning says it all)
-            f"{reaches} the top of its search range (tau_max = {delay.tau_max:g} s): with the feedback gain not "
+            (f"the delay tau = {estimate:.4g} s sits at" if _at_top(estimate, delay) else
+             f"the delay's 95 % interval ({interval[0]:.4g} … {interval[1]:.4g} s) reaches") +
+            f" the top of its search range (tau_max = {delay.tau_max:g} s): with the feedback gain not "
             "determined (above) that is the range's bound, not a measured delay, and the interval is no interval for "
             "the true one" + (f"; the diagnosis added {', '.join(added)}, which may stand in for the fed-back signal: "
                               "compare the fits without " + ("it" if len(added) == 1 else "them") if added else ""))
@@ -941,8 +941,7 @@ def _warn_added_then_zero(out: RunResult) -> None:
     the run says why."""
     if out.refinement is None:
         return
-    coefficients = out.polish.system.coefficients
-    zero = [column for step in out.refinement.steps for column in step.columns if coefficients.get(column, 0.0) == 0.0]
+    zero = [column for step in zeroed(out.refinement.steps, out.polish.system.coefficients) for column in step.columns]
     if zero:
         it = "it" if len(zero) == 1 else "them"
         warnings.warn(

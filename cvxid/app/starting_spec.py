@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from cvxid.data.experiment import READERS, TIME_UNITS, first_step_back, first_text, missing_rows, seconds_per
+from cvxid.data.experiment import (READERS, TIME_UNITS, counts_milliseconds, first_step_back, first_text,
+                                   missing_rows, seconds_per)
 from cvxid.data.hold import HELD_CHECKED, looks_held
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
 from cvxid.spec.load import parse_problem
-from cvxid.spec.problem import counts_milliseconds
 from cvxid.spec.toml import tomllib
 from scipy.signal import welch
 

@@ -636,6 +636,14 @@ TIME_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "min": 60.0, "h": 3600.0}
 """Units a time column may count (seconds per unit); cvxid's time is in seconds."""
 
 
+def counts_milliseconds(time: np.ndarray) -> bool:
+    """Whether a time column read in seconds looks like milliseconds: a step of a second or
+    more on whole numbers (an eleventh outside check's 500 Hz record in ms identified an
+    inertia of 1e6 with no word: only a delay range shorter than a sample was an error)."""
+    step = float(np.median(np.diff(time))) if time.size > 1 else 0.0
+    return step >= 1.0 and bool(np.max(np.abs(time - np.round(time))) <= 1e-6 * step)  # (a uniform grid's rounding)
+
+
 def seconds_per(unit: str) -> float:
     """Seconds per ``unit`` of a time column (:data:`TIME_UNITS`), or a clear error."""
     if unit not in TIME_UNITS:

@@ -225,6 +225,13 @@ def final_label(added: list[str] = (), removed: list[str] = ()) -> str:
     return FINAL if not changes else f"{FINAL}:\n{', '.join(changes)}"
 
 
+def zeroed(steps, coefficients: dict) -> list:
+    """The loop's ``steps`` whose every column ``coefficients`` hold at 0: effects the
+    diagnosis added that a later fit (the output-error polish, at a sign constraint's
+    bound) set to 0 (a delay estimated again adds no column, and is not among them)."""
+    return [s for s in steps if s.columns and all(coefficients.get(c, 0.0) == 0.0 for c in s.columns)]
+
+
 def _drawable(final: dict | None) -> dict | None:
     """The final model's comparisons when each has a free run (from the initial state the
     run estimated on the test record, as its reported fit), else None."""

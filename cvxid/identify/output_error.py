@@ -67,7 +67,7 @@ from cvxid.regression.history import simulation_start
 from cvxid.regression.velocity import initial_state
 from cvxid.regression.builder import usable_segments
 from cvxid.regression.windows import history_seconds
-from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, integrate, substeps_for
+from cvxid.simulate import SimulationDiverged, delay_substeps, half_steps, hermite_weights, integrate, substeps_for
 
 JACOBIAN_STEP = 1e-5
 """Relative step of the finite-difference Jacobian."""
@@ -957,10 +957,8 @@ def between_steps(X: np.ndarray, V: np.ndarray, stride: int, h: float) -> np.nda
     moved to another basin."""
     if stride == 1:
         return X
-    theta = (np.arange(stride) / stride)[None, :, None, None]
-    t2, t3 = theta * theta, theta**3
-    inner = ((2 * t3 - 3 * t2 + 1) * X[:-1, None] + (t3 - 2 * t2 + theta) * h * V[:-1, None]
-             + (3 * t2 - 2 * t3) * X[1:, None] + (t3 - t2) * h * V[1:, None])
+    w = hermite_weights(np.arange(stride) / stride, h)[:, :, None, None]  # (the integrator's own basis)
+    inner = w[:, 0] * X[:-1, None] + w[:, 1] * V[:-1, None] + w[:, 2] * X[1:, None] + w[:, 3] * V[1:, None]
     return np.concatenate([inner.reshape(-1, *X.shape[1:]), X[-1:]])
 
 

@@ -16,7 +16,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from cvxid.data.excitation import excitation
-from cvxid.data.experiment import TIME_UNITS, Experiment, from_frame, load, part_bounds
+from cvxid.data.experiment import TIME_UNITS, Experiment, counts_milliseconds, from_frame, load, part_bounds
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.bootstrap import RESAMPLE, BootstrapSettings
@@ -360,14 +360,6 @@ class ProblemSpec:
 TOP_KEYS = {"name", "description", "truth", "data", "model", "fit", "diagnose"}
 VELOCITIES = ESTIMATORS + ("measured", "auto")
 """``[fit] velocity`` values that are not a measured column's name."""
-
-
-def counts_milliseconds(time: np.ndarray) -> bool:
-    """Whether a time column read in seconds looks like milliseconds: a step of a second or
-    more on whole numbers (an eleventh outside check's 500 Hz record in ms identified an
-    inertia of 1e6 with no word: only a delay range shorter than a sample was an error)."""
-    step = float(np.median(np.diff(time))) if time.size > 1 else 0.0
-    return step >= 1.0 and bool(np.max(np.abs(time - np.round(time))) <= 1e-6 * step)  # (a uniform grid's rounding)
 
 
 def _unknown_velocity(velocity: str, why: str) -> CvxidError:
