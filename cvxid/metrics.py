@@ -197,6 +197,24 @@ def band_period(outputs, dt: float, share: float = 0.95) -> float:
     return float(min(2 * np.pi / edge, longest)) if edge > 0 else float(longest)
 
 
+def peak_period(y: np.ndarray, dt: float) -> float:
+    """The period of the highest peak of the power spectrum of ``y`` (sampled every ``dt``,
+    its NaN gaps left out; the mean left out), the peak located between its bins by the
+    parabola through the logarithms of its three (a bin of a Welch segment of half the
+    record is two cycles of the record wide: the peak's own bin alone placed a 3.25 Hz
+    resonance 2 % off, three half periods 9 ms off): the oscillation a narrow-band response
+    repeats, in the record's own time unit."""
+    y = np.asarray(y, float)
+    f, pxx, _ = _spectrum(y[np.isfinite(y)], 1.0 / dt)
+    if f.size < 3:
+        return float(y.size * dt)
+    i = 1 + int(np.argmax(pxx[1:-1]))
+    a, b, c = np.log(np.maximum(pxx[i - 1:i + 2], np.finfo(float).tiny))
+    shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c < 0 else 0.0
+    peak = f[i] + shift * (f[1] - f[0])
+    return float(1.0 / peak) if peak > 0 else float(y.size * dt)
+
+
 def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:
     """The angular frequency below which ``share`` of the variance of ``y`` lies, above the
     noise floor (the white noise's mean density, :func:`_spectrum`).  The floor is

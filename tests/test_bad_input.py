@@ -34,6 +34,9 @@ def test_constant_input_is_refused():
     e = Experiment(T, {"x": np.sin(T)}, {"f": np.full(T.size, 2.0)})
     with pytest.raises(CvxidError, match="input 'f' is constant"):
         RegressionBuilder(MODEL, e, "savgol")
+    # a free decay (a twelfth outside check's plucked structure): the message says what a decay cannot give
+    with pytest.raises(CvxidError, match=r"A free decay \(no force\) cannot be identified.*two numbers"):
+        RegressionBuilder(MODEL, Experiment(T, {"x": np.exp(-T) * np.sin(T)}, {"f": np.zeros(T.size)}), "savgol")
 
 
 def test_rank_deficient_library_is_named():
@@ -1030,3 +1033,33 @@ def test_a_gap_names_the_candidate_the_diagnosis_refused():
     assert gap and "part of the dynamics is not in the model, and the diagnosis stopped at coulomb" in gap[0]
     unhelpful = SimpleNamespace(stopped=stopped_at("offset", 0.98), diagnoses=[SimpleNamespace(ranking=ranking)])
     assert "stopped at" not in _said_of_fits(_warn_drift, 53.6, 98.7, 98.8, unhelpful)[0]  # it did not help: unsaid
+
+
+def test_a_parameter_without_a_standard_error_has_no_interval_of_zero_width():
+    """A twelfth outside check (input and output swapped, a diverged polish): every standard
+    error was NaN, the profile's one inside point hulled each value with itself, and
+    result.json read m [0.000379, 0.000379], an exact parameter to a script; now no interval
+    (NaN, null in result.json), and a profile that spans values still gives its range."""
+    from cvxid.identify.output_error import PolishResult
+    from cvxid.identify.profile import DelayProfile
+
+    profile = DelayProfile(np.array([0.1, 0.2]), np.array([1.0, 2.0]), 0.1, (0.1, 0.1), 100.0, "output_error",
+                           {"m": (0.000379, 0.000379), "k": (5.0, 6.0)})
+    polish = PolishResult(None, {"m": 0.000379, "k": 5.5}, {"m": np.nan, "k": np.nan}, 1.0, 1.0, (), 0, 0.0, profile)
+    assert np.isnan(polish.interval("m")).all()
+    assert polish.interval("k") == (5.0, 6.0)
+
+
+def test_a_header_that_names_a_column_twice_is_refused(tmp_path):
+    """A twelfth outside check: ``t,x,x,f`` was read with the second x renamed x.1 by pandas,
+    and `cvxid init` listed "not used: x.1", a name the file does not hold; two sensors
+    labelled x passed silently.  Now refused, naming the columns; empty trailing fields are
+    not names."""
+    from cvxid.data.experiment import _csv_columns
+
+    path = tmp_path / "twice.csv"
+    path.write_text("t,x,x,f\n0,1,1,0\n0.1,2,2,1\n0.2,3,3,0\n")
+    with pytest.raises(CvxidError, match=r"names a column twice \('x' in columns 2 and 3\)"):
+        _csv_columns(path)
+    path.write_text("t,x,f,,\n0,1,0,,\n0.1,2,1,,\n")
+    assert set(_csv_columns(path)) >= {"t", "x", "f"}

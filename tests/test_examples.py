@@ -255,3 +255,21 @@ def test_the_same_system_in_micrometres_or_100_times_slower_gives_the_same_answe
         for key in ("m", "x'", "x", "tau"):
             assert row[f"{key} error %"] == pytest.approx(reference[f"{key} error %"], abs=0.1), (name, key)
             assert row[f"{key} covers"] == reference[f"{key} covers"], (name, key)
+
+
+@pytest.mark.slow
+def test_narrow_band_delays_find_their_basin_and_a_longer_delay(monkeypatch, tmp_path, capsys):
+    """Tuning seeds 8 and 9 of examples/narrow_band_delays.py (regenerative chatter, the gain
+    estimated).  Seed 9, the range holding the delay: its profile's lowest point (0.457 s)
+    and the equation error's estimate (0.290) are aliases, and the true 0.205 s is found by
+    the fits from the profile's basins (0.290 without them; measured +0.005 %, its interval
+    covering).  Seed 8, the range stopping at 0.75 of the delay: the alias inside is
+    reported, and the delay past the range that fits better is said, within 1 %."""
+    run_example("narrow_band_delays.py", monkeypatch, tmp_path, capsys, SEEDS="8:10")
+    rows = pd.read_csv(tmp_path / "narrow_band_delays.csv").set_index(["seed", "range"])
+    for seed in (8, 9):
+        held = rows.loc[(seed, "holds it")]
+        assert abs(held["tau error %"]) < 0.1 and held["gain sign right"], seed
+    assert bool(rows.loc[(9, "holds it"), "covers"])
+    short = rows.loc[(8, "stops short")]
+    assert not short["covers"] and bool(short["longer within 1 %"])

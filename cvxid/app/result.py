@@ -9,7 +9,7 @@ and for a coupled system are listed in ``docs/spec.md``).  For one equation its
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 import pandas as pd
@@ -179,6 +179,7 @@ class RunResult:
                 "jacobian_spread": self.polish.jacobian_spread,
                 "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
+                "longer_delay": None if self.polish.longer_delay is None else asdict(self.polish.longer_delay),
                 "standard_errors": {self._key(name): se for name, se in self.polish.standard_errors.items()},
                 "intervals": {self._key(name): list(self.polish.physical_interval(name))
                               for name in self.polish.parameters},

@@ -231,6 +231,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     delay = spec.delay
     if estimate is None or delay is None or not delay.exact:
         return
+    if out.polish is not None and out.polish.longer_delay is not None:  # (a twelfth outside check's chatter)
+        warnings.warn(out.polish.longer_delay.advice(), CvxidWarning, stacklevel=2)
+        return
     tolerance = TOP * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
     bottom = max(tolerance, EDGE_SAMPLES * out.train.dt)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
@@ -491,12 +494,14 @@ def _warn_diverged_profile(polish) -> None:
         return
     near = [j for j in (inside[0] - 1, inside[-1] + 1) if 0 <= j < profile.taus.size and diverged[j]]
     if near:
+        printed = polish.interval("tau")  # (the printed one, with the standard error's part: a twelfth outside
+        #                                    check read 0.075 … 0.07625 here and 0.065 … 0.087 printed)
         warnings.warn(
             f"the output-error fits diverged at {int(diverged.sum())} of the {profile.taus.size} delays of the "
             f"profile, at the edge of the delay's interval ({', '.join(f'{profile.taus[j]:.4g}' for j in near)} "
             "s): the model "
             "cannot be simulated there, so the delay's 95 % interval "
-            f"({profile.interval[0]:.4g} … {profile.interval[1]:.4g} s) is taken to reach them and says nothing "
+            f"({printed[0]:.4g} … {printed[1]:.4g} s) is taken to reach them and says nothing "
             "beyond. An estimated gain that destabilises the loop at any other delay is the usual cause: give "
             "the gain ([model.delay] gain = …) or a narrower delay range", CvxidWarning, stacklevel=2)
 
@@ -528,7 +533,9 @@ def _warn_drift(out: RunResult) -> None:
             "stopped in a basin of the simulation error away from the data (on a long record: identify a "
             "shorter stretch first, or give the delay a narrower range), or the model lacks part of the "
             "dynamics, a small force each step that adds up over a free run (an effect the diagnosis did not "
-            "find, or outside its catalogue), or it is too sensitive to simulate; read its parameters with care"
+            "find, or outside its catalogue), or the sensor drifts slowly (an offset that wanders: no model term "
+            "follows it; high-pass the record, or fit a shorter stretch), or it is too sensitive to simulate; read its "
+            "parameters with care"
             + _astray(c, before.get(label)) + (f". Of the catalogue, {refused}" if (refused := _refused(out)) else ""),
             CvxidWarning, stacklevel=2)
 

@@ -250,8 +250,13 @@ class Experiment:
 
         for name in inputs:
             if constant(self.input(name)):
-                raise CvxidError(f"experiment '{self.name}': input '{name}' is constant, so it does not excite the "
-                                 "system; identification needs a varying input")
+                raise CvxidError(
+                    f"experiment '{self.name}': input '{name}' is constant, so it does not excite the system; "
+                    "identification needs a varying input. A free decay (no force) cannot be identified: its "
+                    "equation is homogeneous, so the parameters are defined only relative to one another, and a "
+                    "decaying mode shows two numbers (its frequency and its decay rate), not a mass, damping, "
+                    "stiffness, feedback gain and delay; record the force that moves the system (a hammer blow "
+                    "measured by an impact hammer, a shaker's force)")
         for name in outputs:
             if constant(self.output(name)):
                 raise CvxidError(f"experiment '{self.name}': output '{name}' is constant, so the record holds no "
@@ -453,6 +458,14 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
     options = {"encoding": "utf-8-sig", **_separator(path)}  # (a byte-order mark is not the first name's)
+    header = [str(n).strip() for n in read(nrows=1, header=None, **options).iloc[0]]
+    twice = sorted({n for n in header if header.count(n) > 1 and n not in ("", "nan") and not _numeric(n)})
+    #              (empty fields are no names, and a line of numbers is no header: refused below)
+    if twice:  # (pandas renames the second x.1: a twelfth outside check's two sensors named x, one read silently)
+        where = "; ".join(f"'{n}' in columns {' and '.join(str(i + 1) for i, h in enumerate(header) if h == n)}"
+                          for n in twice)
+        raise CvxidError(f"{path}: the header names a column twice ({where}): rename one so that each column has "
+                         "its own name, and point the spec's [data] at the one you mean")
     head = read(nrows=100, **options)
     names = [str(c).replace(",", ".") if options.get("decimal") == "," else str(c) for c in head.columns]
     default = names == [str(i) for i in range(len(names))]  # (pandas' to_csv of an unnamed frame: 0,1,2)
