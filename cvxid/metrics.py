@@ -11,6 +11,8 @@ it below 100 % even for the true model: :func:`noise_ceiling_percent`.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import numpy as np
 from scipy.signal import welch
 from scipy.stats import chi2
@@ -197,22 +199,41 @@ def band_period(outputs, dt: float, share: float = 0.95) -> float:
     return float(min(2 * np.pi / edge, longest)) if edge > 0 else float(longest)
 
 
-def peak_period(y: np.ndarray, dt: float) -> float:
-    """The period of the highest peak of the power spectrum of ``y`` (sampled every ``dt``,
-    its NaN gaps left out; the mean left out), the peak located between its bins by the
-    parabola through the logarithms of its three (a bin of a Welch segment of half the
-    record is two cycles of the record wide: the peak's own bin alone placed a 3.25 Hz
-    resonance 2 % off, three half periods 9 ms off): the oscillation a narrow-band response
-    repeats, in the record's own time unit."""
+class SpectralPeak(NamedTuple):
+    """The highest peak of a record's power spectrum: its period and the share of the
+    signal's variance (above the noise floor) within :data:`PEAK_WIDTH` of its frequency."""
+
+    period: float
+    share: float
+
+
+PEAK_WIDTH = 0.25
+"""The band around a spectral peak, as a share of its frequency either side, whose variance
+:func:`spectral_peak` gives (a lightly damped resonance's peak, damping ratio up to about
+10 %, lies within it)."""
+
+
+def spectral_peak(y: np.ndarray, dt: float) -> SpectralPeak:
+    """The highest peak of the power spectrum of ``y`` (sampled every ``dt``, its NaN gaps
+    left out; the mean left out), located between its bins by the parabola through the
+    logarithms of its three (a bin of a Welch segment of half the record is two cycles of
+    the record wide: the peak's own bin alone placed a 3.25 Hz resonance 2 % off, three half
+    periods 9 ms off), and the share of the variance above the noise floor within
+    :data:`PEAK_WIDTH` of it: near 1 for a narrow-band response (a lightly damped structure
+    driven through its resonance), small for a broad-band one."""
     y = np.asarray(y, float)
-    f, pxx, _ = _spectrum(y[np.isfinite(y)], 1.0 / dt)
+    f, pxx, floor = _spectrum(y[np.isfinite(y)], 1.0 / dt)
     if f.size < 3:
-        return float(y.size * dt)
+        return SpectralPeak(float(y.size * dt), 0.0)
     i = 1 + int(np.argmax(pxx[1:-1]))
     a, b, c = np.log(np.maximum(pxx[i - 1:i + 2], np.finfo(float).tiny))
     shift = 0.5 * (a - c) / (a - 2 * b + c) if a - 2 * b + c < 0 else 0.0
     peak = f[i] + shift * (f[1] - f[0])
-    return float(1.0 / peak) if peak > 0 else float(y.size * dt)
+    if not peak > 0:
+        return SpectralPeak(float(y.size * dt), 0.0)
+    signal = np.maximum(pxx - floor, 0.0)
+    near = np.abs(f - peak) <= PEAK_WIDTH * peak
+    return SpectralPeak(float(1.0 / peak), float(signal[near].sum() / signal.sum()) if signal.sum() > 0 else 0.0)
 
 
 def band_edge(y: np.ndarray, dt: float, share: float = 0.95) -> float:

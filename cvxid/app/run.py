@@ -34,7 +34,7 @@ from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
-from cvxid.identify.output_error import cancelling_gain, natural_inertia, polish, typical_spread
+from cvxid.identify.output_error import cancelling_gain, longer_delay, natural_inertia, polish, typical_spread
 from cvxid.identify.path import SELECTING, Path
 from cvxid.identify.selection import Selection
 from cvxid.identify.profile import profile_input_delay, with_input_tau
@@ -80,6 +80,7 @@ def run(spec, train=None, test=None) -> RunResult:
             result = _best_velocity(spec)
         else:
             result = _identify(spec)
+        _look_past_the_range(result)
         _compare(result)
         _warn_confounded_gain(result)
         _warn_delay_at_bound(result)
@@ -216,6 +217,14 @@ def _trading(polish) -> tuple[str, ...]:
     return tuple(name for name in map(spec.parameter_name, spec.linear_terms) if name in polish.parameters)
 
 
+def _look_past_the_range(out: RunResult) -> None:
+    """In a narrow-band record, the final polish's delay compared with its aliases past the
+    search range (:func:`~cvxid.identify.output_error.longer_delay`), into
+    ``out.polish.longer_delay``; :func:`_warn_delay_at_bound` says what it finds."""
+    if out.polish is not None and out.polish.profile is not None:
+        out.polish = replace(out.polish, longer_delay=longer_delay(out.polish, [out.train]))
+
+
 def _warn_delay_at_bound(out: RunResult) -> None:
     r"""A fed-back delay estimated at an end of its search range, or not determined, said
     aloud: at ``tau_max`` the true delay may be longer (unless the estimated gain's interval
@@ -231,8 +240,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     delay = spec.delay
     if estimate is None or delay is None or not delay.exact:
         return
-    if out.polish is not None and out.polish.longer_delay is not None:  # (a twelfth outside check's chatter)
-        warnings.warn(out.polish.longer_delay.advice(), CvxidWarning, stacklevel=2)
+    if out.polish is not None and out.polish.longer_delay is not None:  # (a twelfth outside check's chatter; the
+        #                                    bound's warnings below would say less, about the alias)
+        warnings.warn(out.polish.longer_delay.advice() + _added_delay_note(out), CvxidWarning, stacklevel=2)
         return
     tolerance = TOP * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
     bottom = max(tolerance, EDGE_SAMPLES * out.train.dt)

@@ -13,10 +13,10 @@ from one to the next.  The output-error profile's grid can step over the true ba
 twelfth outside check: a delay of 0.72 s, 2.3 periods, reported as 0.561 with the gain's
 sign flipped and an interval of 4 ms, though 0.72 fitted better), and a true delay just
 past the search range leaves its alias inside it, as confident as the truth would be.
-The polish therefore profiles the delay on a grid finer than the band's period, fits each
-of the profile's basins with the delay free (``output_error._basin_fits``), and at its
-end fits the estimate's aliases past the range (:func:`alias_starts`,
-``output_error._longer_delay``).
+In such a record (``output_error.narrow_band``) the polish profiles the delay on a grid
+finer than the peak's period and fits each of the profile's basins with the delay free
+(``output_error._basin_fits``), and the run fits its estimate's aliases past the range
+(:func:`alias_starts`, ``output_error.longer_delay``).
 """
 
 from __future__ import annotations
@@ -26,9 +26,10 @@ from dataclasses import dataclass, replace
 from ..identified import IdentifiedModel, IdentifiedSystem
 
 BEYOND = (1, 2, 3, 4)
-"""Half periods past the estimate at which the run's last polish fits a longer delay, past
-the search range (up to two periods: an outside check's chatter at 0.85 s, searched to
-0.5 s, ended at its alias 0.38, three half periods short)."""
+"""Half periods past the estimate at which the run fits a longer delay, those past the
+search range's top (up to two periods past the estimate: an outside check's chatter at
+0.85 s, searched to 0.5 s, ended at its alias 0.38, three half periods short; a true delay
+further past the top is not looked for)."""
 
 
 @dataclass(frozen=True)

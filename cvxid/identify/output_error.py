@@ -58,9 +58,9 @@ from cvxid.data.experiment import Experiment
 from cvxid.data.remembered import remembered
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
-from cvxid.identify.aliases import BEYOND, LongerDelay, alias_starts, with_gain_sign
+from cvxid.identify.aliases import LongerDelay, alias_starts, with_gain_sign
 from cvxid.identify.profile import DelayProfile, effective_rows
-from cvxid.metrics import band_period, measurement_noise, peak_period
+from cvxid.metrics import SpectralPeak, band_period, measurement_noise, spectral_peak
 from cvxid.model.symbols import velocity_symbol
 from cvxid.parallel import one_blas_thread
 from cvxid.progress import progress
@@ -93,8 +93,8 @@ spread, a coefficient's force per unit of its term, a delay's band period
 starts at 0 unmoved in data written in micrometres, and a delay near 0 at the round-off of
 a slow plant's.)"""
 GRID = 21
-"""Delays of the output-error profile across ``[tau_min, tau_max]`` (then a finer grid
-around its best point).  The simulation error has local minima in :math:`\tau`, and with
+"""Delays of the output-error profile across ``[tau_min, tau_max]``, more in a narrow-band
+record (:data:`SPACING`; then a finer grid around its best point).  The simulation error has local minima in :math:`\tau`, and with
 an unknown gain whole ranges of delays fit equally well: a local fit cannot see either."""
 PROFILE_ITERATIONS = 12
 """Iterations of each fixed-delay fit of the profile (warm-started from its neighbour)."""
@@ -307,7 +307,9 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
            final: bool = True, max_iterations: int = 200, grid: int = GRID, final_iterations: int = 50,
            initial=None) -> PolishResult:
     """Output-error polish.  With a fed-back delay, first its profile: the simulation
-    error refitted at ``grid`` delays across ``[tau_min, tau_max]`` (each fit warm-started
+    error refitted at ``grid`` delays (more in a narrow-band record, whose basins are then
+    fitted with the delay free: :func:`_grid`, :func:`_basin_fits`) across
+    ``[tau_min, tau_max]`` (each fit warm-started
     from its neighbour, on a simulation step of about ``coarse_step``, by default
     :func:`profile_step` of the records) and on a finer grid
     around the best; then every parameter from the best delay, refined at the sample step
@@ -361,7 +363,6 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
                 break
             best, level = again
         profile = _interval(points, best)
-    longer = _longer_delay(replace(best, profile=profile), experiments, coarse_step) if final and profile else None
     if not best.rms_after <= before:
         tried = "from the delay profile's best delay and from the start's own" if points else "from the start"
         warnings.warn(
@@ -369,8 +370,7 @@ def polish(fitted: IdentifiedModel | IdentifiedSystem, experiments, coarse_step:
             f"{best.rms_after:.4g}), fitted {tried}: the simulation error has another basin the fit cannot leave "
             "(an estimated gain trading with the stiffness?); read the polished model with care, or give the gain "
             "([model.delay] gain)", CvxidWarning, stacklevel=2)
-    return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile,
-                   longer_delay=longer)
+    return replace(best, rms_before=before, seconds=time.perf_counter() - start, profile=profile)
 
 
 def _finished(fit: PolishResult, experiments, coarse_step: float | Step, final: bool, iterations: int):
@@ -480,30 +480,35 @@ def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step
 
 
 SPACING = 1 / 8
-"""The output-error profile's delays are at most this share of the records' band period
-(:func:`~cvxid.metrics.band_period`) apart, at least :data:`GRID` of them, at most
-:data:`MAX_GRID`: a narrow-band response's simulation error has basins about half a period
-wide, half a period apart (:mod:`cvxid.identify.aliases`), and a grid coarser than that
-steps over the true one (the chatter benchmark's tuning seed 5: 0.03 s apart at a band
-period of 0.15 s, the delay 14 % off in another basin; ``examples/narrow_band_delays.py``)."""
+"""In a narrow-band record (:func:`narrow_band`) the output-error profile's delays are at
+most this share of its band period apart (:func:`~cvxid.metrics.band_period`: its basins
+are as narrow as its highest frequencies make them), at least :data:`GRID` of them, at
+most :data:`MAX_GRID`: its simulation error has basins half a period apart
+(:mod:`cvxid.identify.aliases`), and a grid coarser than that steps over the true one (the
+chatter benchmark's tuning seed 5: 0.03 s apart at a band period of 0.10 s, the delay 14 %
+off in another basin; ``examples/narrow_band_delays.py``)."""
 MAX_GRID = 81
 
 
 def _grid(system: IdentifiedSystem, experiments, least: int) -> int:
-    """The profile's delays: ``least``, or more where the records' band period asks for a
-    finer grid (:data:`SPACING`)."""
+    """The profile's delays: ``least``, or in a narrow-band record (:func:`narrow_band`)
+    as many as leave them :data:`SPACING` of the records' band period apart (at most
+    :data:`MAX_GRID`)."""
+    if narrow_band(system, experiments) is None:
+        return least
     delay = next(iter(system.specs.values())).delay
     period = min(remembered(e, ("band period", tuple(system.coordinates)),
                             lambda e=e: band_period([e.output(c) for c in system.coordinates], e.dt))
                  for e in experiments)
-    return int(np.clip(np.ceil((delay.tau_max - delay.tau_min) / (SPACING * period)) + 1, least, MAX_GRID))
+    return max(least, min(MAX_GRID, int(np.ceil((delay.tau_max - delay.tau_min) / (SPACING * period))) + 1))
 
 
 def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float | Step, grid: int) -> dict:
     """Delay -> (simulation RMS, fit) with every other parameter refitted, on ``grid``
     delays across the delay's range walked outwards from the estimate (each fit starts from
     its neighbour's, :func:`_profile_fit`), the stranded ones refitted from their
-    neighbour towards the best (:data:`REPAIR`), then on a finer grid around the best.
+    neighbour towards the best (:data:`REPAIR`), a narrow-band record's basins fitted with
+    the delay free (:func:`_basin_fits`), then on a finer grid around the best.
     Empty without a fed-back delay."""
     delay = next(iter(system.specs.values())).delay
     if delay is None or not any(float(m.system().gain) for m in system.models.values()):
@@ -552,13 +557,33 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float |
 
 ALIAS_ITERATIONS = 30
 """Iterations of each fit with the delay free from a basin of the profile (:func:`_basin_fits`)
-or an alias past its range (:func:`_longer_delay`)."""
+or an alias past its range (:func:`longer_delay`)."""
 
 
-def _peak_period(system: IdentifiedSystem, experiments) -> float:
-    """The peak period of the fed-back coordinate's first record (:func:`~cvxid.metrics.peak_period`)."""
+def _peak(system: IdentifiedSystem, experiments) -> SpectralPeak:
+    """The spectral peak of the fed-back coordinate's first record (:func:`~cvxid.metrics.spectral_peak`)."""
     coordinate, e = next(iter(system.specs.values())).delay.coordinate, experiments[0]
-    return remembered(e, ("peak period", coordinate), lambda: peak_period(e.output(coordinate), e.dt))
+    return remembered(e, ("spectral peak", coordinate), lambda: spectral_peak(e.output(coordinate), e.dt))
+
+
+NARROW_SHARE = 0.3
+"""A record is narrow-band when this share of its variance (or more) lies near its spectral
+peak (:func:`~cvxid.metrics.spectral_peak`): 0.40–1.0 on the chatter benchmark's 20
+records (``examples/narrow_band_delays.py``, tuning and report seeds), 0.13 on a stranger's
+fast plant driven by a chirp and sines (whose profile's 81 delays and basins' fits took 2.4
+times as long for the same estimate).  The held-out benchmark's oscillators hold 0–0.93,
+but their periods are seconds: the range (0.5 s) spans half of one on few of them."""
+
+
+def narrow_band(system: IdentifiedSystem, experiments) -> SpectralPeak | None:
+    """The records' spectral peak when the delay's aliases matter (:mod:`cvxid.identify.aliases`):
+    one equation, a narrow-band response (:data:`NARROW_SHARE`) and a delay range that spans
+    half its peak period or more; else None."""
+    delay = next(iter(system.specs.values())).delay
+    if system.single is None or delay is None:
+        return None
+    peak = _peak(system, experiments)
+    return peak if peak.share >= NARROW_SHARE and delay.tau_max - delay.tau_min >= peak.period / 2 else None
 
 
 BASINS = 8
@@ -567,26 +592,23 @@ the lowest first (:func:`_basin_fits`)."""
 
 
 def _basin_fits(points: dict, experiments, step: float | Step) -> None:
-    """In a narrow-band record (a delay range that spans half the response's peak period
-    or more: :mod:`cvxid.identify.aliases`), fits with the delay free from the profile's
-    local minima (at most :data:`BASINS`, the lowest first), each added to the profile at
-    the delay it reaches.  The profile's fits are short (:data:`PROFILE_ITERATIONS`) and
+    """In a narrow-band record (:func:`narrow_band`), fits with the delay free from the
+    profile's local minima (at most :data:`BASINS`, the lowest first; a plateau's points
+    are none), each added to the profile at the delay it reaches (the least simulation error
+    near that delay, as a fixed-delay point's is at its own; the other parameters' standard
+    errors then count the delay's spread too, a wider hull).  The profile's fits are short (:data:`PROFILE_ITERATIONS`) and
     start from their neighbour: where the simulation error has narrow basins half a period
     apart they stop at different depths of their basins, and the lowest profile point need
     not be in the lowest basin (a twelfth outside check: 0.561 s reported, with the gain's
     sign flipped, where 0.72 fitted better; the chatter benchmark's tuning seed 9: 0.290
     for 0.205)."""
     best = min(points, key=lambda t: points[t][0])
-    system = points[best][1].system
-    if system.single is None:
-        return
-    delay = system.single.spec.delay
-    if delay.tau_max - delay.tau_min < _peak_period(system, experiments) / 2:
+    if narrow_band(points[best][1].system, experiments) is None:
         return
     taus = np.array(sorted(points))
     rms = np.array([points[t][0] for t in taus])
-    padded = np.concatenate([[np.inf], rms, [np.inf]])
-    minima = np.flatnonzero((rms <= padded[:-2]) & (rms <= padded[2:]) & np.isfinite(rms))
+    left, right = np.concatenate([[np.inf], rms[:-1]]), np.concatenate([rms[1:], [np.inf]])
+    minima = np.flatnonzero(np.isfinite(rms) & (rms <= left) & (rms <= right) & ((rms < left) | (rms < right)))
     for i in minima[np.argsort(rms[minima])][:BASINS]:
         near = points[taus[i]][1]
         try:
@@ -598,35 +620,39 @@ def _basin_fits(points: dict, experiments, step: float | Step) -> None:
             points[at] = (again.rms_after, again)
 
 
-def _longer_delay(best: PolishResult, experiments, step: float | Step) -> LongerDelay | None:
-    """A delay past the search range whose fit simulates the training record better than
-    ``best`` beyond the profile's chance bound (:func:`_inside`), among the aliases of
-    ``best``'s delay up to two periods past the range's top
-    (:data:`~cvxid.identify.aliases.BEYOND`); both fitted on the part of the records a
-    simulation with the longest of them can start from.  Looked for where the range spans
-    half a period of the response at least (a narrower range holds no alias of a longer
-    delay: a delay past it shows at its top), and the record holds
-    :data:`LONGEST_SHARE` of itself after that delay."""
+def longer_delay(best: PolishResult, experiments) -> LongerDelay | None:
+    """A delay past the search range whose fit simulates the training records better than
+    ``best``'s beyond chance, in a narrow-band record (:func:`narrow_band`): the aliases of
+    ``best``'s delay up to two periods past it (:data:`~cvxid.identify.aliases.BEYOND`)
+    that lie past the range's top, each fitted with the delay free above the top, against
+    ``best`` refitted at its own delay, on the same samples (those a simulation with the
+    longest alias can start from), the same step and iterations.  Beyond chance: the
+    profile's likelihood-ratio bound (:func:`_inside`) at a 5 % level shared by the aliases
+    tried (Bonferroni), on the refit's effective rows; and at least an eighth of a period
+    past the top (a fit that slid back to the top is the range's own).  Only where each
+    record holds :data:`LONGEST_SHARE` of itself after the longest alias.  The run calls it
+    on its final polish (``cvxid.app.run``)."""
     system = best.system
-    if system.single is None or best.profile is None or not np.isfinite(best.rms_after):
+    peak = narrow_band(system, experiments) if np.isfinite(best.rms_after) and "tau" in best.parameters else None
+    if peak is None:
         return None
-    delay, tau = system.single.spec.delay, best.parameters["tau"]
-    period = _peak_period(system, experiments)
+    delay, tau, period = system.single.spec.delay, best.parameters["tau"], peak.period
     shortest = min(e.time[-1] - e.time[0] for e in experiments)
-    if period / 2 > delay.tau_max - delay.tau_min:
-        return None
-    starts = [s for s in alias_starts(tau, period, delay.tau_max, (1 - LONGEST_SHARE) * shortest - period / 4,
-                                      delay.gain is None, BEYOND) if s[0] > delay.tau_max]
+    starts = alias_starts(tau, period, delay.tau_max + period / 8, (1 - LONGEST_SHARE) * shortest - period / 4,
+                          delay.gain is None)
     if not starts:
         return None
+    step = profile_step(system, experiments)
     reach = max(a for a, _ in starts) + period / 4
-    wide = _with_delay(system, replace(delay, tau_max=reach))
     try:
-        estimate = output_error(wide, experiments, None, step=step, max_iterations=ALIAS_ITERATIONS, fixed_tau=tau)
+        estimate = output_error(_with_delay(system, replace(delay, tau_max=reach)), experiments, None, step=step,
+                                max_iterations=ALIAS_ITERATIONS, fixed_tau=tau)
     except CvxidError:
         return None
+    if not np.isfinite(estimate.rms_after):
+        return None
     past = _with_delay(system, replace(delay, tau_min=delay.tau_max, tau_max=reach))
-    chance = 1 + best.input_noise_inflation * chi2.ppf(0.95, 1) / best.effective_rows
+    chance = 1 + best.input_noise_inflation * chi2.ppf(1 - 0.05 / len(starts), 1) / estimate.effective_rows
     found = None
     for alias, sign in starts:
         try:
@@ -634,7 +660,9 @@ def _longer_delay(best: PolishResult, experiments, step: float | Step) -> Longer
                                max_iterations=ALIAS_ITERATIONS)
         except CvxidError:
             continue
-        if fit.rms_after**2 * chance < estimate.rms_after**2 and (found is None or fit.rms_after < found.rms_after):
+        better = fit.rms_after**2 * chance < estimate.rms_after**2 and fit.parameters["tau"] >= \
+            delay.tau_max + period / 8
+        if better and (found is None or fit.rms_after < found.rms_after):
             found = fit
     if found is None:
         return None
