@@ -221,8 +221,9 @@ def _look_past_the_range(out: RunResult) -> None:
     """In a narrow-band record, the final polish's delay compared with its aliases past the
     search range (:func:`~cvxid.identify.output_error.longer_delay`), into
     ``out.polish.longer_delay``; :func:`_warn_delay_at_bound` says what it finds."""
-    if out.polish is not None and out.polish.profile is not None:
-        out.polish = replace(out.polish, longer_delay=longer_delay(out.polish, [out.train]))
+    found = longer_delay(out.polish, [out.train]) if out.polish is not None and out.polish.profile is not None else None
+    if found is not None:  # (else the polish stays the stage's own object: stepwise.final is out.polish)
+        out.polish = replace(out.polish, longer_delay=found)
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
