@@ -389,6 +389,23 @@ def test_a_delay_at_an_end_of_its_range_is_a_warning(tmp_path, rng, tau, bounds,
     assert (warnings and said in warnings[0]) if said else not warnings, warnings
 
 
+def test_a_given_gain_of_the_wrong_sign_is_named_beside_a_delay_at_0(tmp_path, rng):
+    """A twelfth outside check: the gain given as -3 for +3 sent the delay to 0 (the
+    stiffness absorbing the feedback) and the warning named a damping standing in, not the
+    given gain; now it names the gain and how to check it."""
+    import json
+
+    from cvxid.app.cli import main
+
+    _delayed_record(tmp_path, rng, tau=0.15)
+    (tmp_path / "spec.toml").write_text(DELAYED.format(tau_max=0.3).replace("gain = 2.0", "gain = -2.0"))
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    result = json.loads((tmp_path / "out" / "result.json").read_text())
+    said = [w for w in result["warnings"] if "is at 0, the bottom" in w]
+    assert result["tau"]["estimate"] < 0.01 and said, result["warnings"]
+    assert "The gain is given (-2): a given gain of the wrong sign or size" in said[0]
+
+
 def _dead_zone_record(path, seed: int = 41):
     """An effect outside the catalogue (an eleventh outside check): ``x'' + 0.4 x' + 6 x =
     f + 3 D(x(t - 0.15))``, D a dead zone of half-width 0.4 on the fed-back signal, from a
