@@ -27,8 +27,10 @@ duration = 20.0
 dt = 1e-3
 seed = 1
 noise = { output = 0.0005, input = 0.01 }
-input = [ { kind = "sine", amplitude = 20.0, omega = 9.0 }, { kind = "sine", amplitude = 20.0, omega = 21.0, phase = 1.0 },
-          { kind = "sine", amplitude = 20.0, omega = 33.0, phase = 2.0 }, { kind = "sine", amplitude = 20.0, omega = 47.0, phase = 0.5 } ]
+input = [ { kind = "sine", amplitude = 20.0, omega = 9.0 },
+          { kind = "sine", amplitude = 20.0, omega = 21.0, phase = 1.0 },
+          { kind = "sine", amplitude = 20.0, omega = 33.0, phase = 2.0 },
+          { kind = "sine", amplitude = 20.0, omega = 47.0, phase = 0.5 } ]
 
 [data.test.simulate]
 duration = 8.0

@@ -94,8 +94,9 @@ starts at 0 unmoved in data written in micrometres, and a delay near 0 at the ro
 a slow plant's.)"""
 GRID = 21
 """Delays of the output-error profile across ``[tau_min, tau_max]``, more in a narrow-band
-record (:data:`SPACING`; then a finer grid around its best point).  The simulation error has local minima in :math:`\tau`, and with
-an unknown gain whole ranges of delays fit equally well: a local fit cannot see either."""
+record (:data:`SPACING`; then a finer grid around its best point).  The simulation error
+has local minima in :math:`\tau`, and with an unknown gain whole ranges of delays fit
+equally well: a local fit cannot see either."""
 PROFILE_ITERATIONS = 12
 """Iterations of each fixed-delay fit of the profile (warm-started from its neighbour)."""
 
@@ -596,12 +597,12 @@ def _basin_fits(points: dict, experiments, step: float | Step) -> None:
     profile's local minima (at most :data:`BASINS`, the lowest first; a plateau's points
     are none), each added to the profile at the delay it reaches (the least simulation error
     near that delay, as a fixed-delay point's is at its own; the other parameters' standard
-    errors then count the delay's spread too, a wider hull).  The profile's fits are short (:data:`PROFILE_ITERATIONS`) and
-    start from their neighbour: where the simulation error has narrow basins half a period
-    apart they stop at different depths of their basins, and the lowest profile point need
-    not be in the lowest basin (a twelfth outside check: 0.561 s reported, with the gain's
-    sign flipped, where 0.72 fitted better; the chatter benchmark's tuning seed 9: 0.290
-    for 0.205)."""
+    errors then count the delay's spread too, a wider hull).  The profile's fits are short
+    (:data:`PROFILE_ITERATIONS`) and start from their neighbour: where the simulation error
+    has narrow basins half a period apart they stop at different depths of their basins,
+    and the lowest profile point need not be in the lowest basin (a twelfth outside check:
+    0.561 s reported, with the gain's sign flipped, where 0.72 fitted better; the chatter
+    benchmark's tuning seed 9: 0.290 for 0.205)."""
     best = min(points, key=lambda t: points[t][0])
     if narrow_band(points[best][1].system, experiments) is None:
         return
