@@ -1080,3 +1080,26 @@ def test_a_header_that_names_a_column_twice_is_refused(tmp_path):
         _csv_columns(path)
     path.write_text("t,x,f,,\n0,1,0,,\n0.1,2,1,,\n")
     assert set(_csv_columns(path)) >= {"t", "x", "f"}
+
+
+@pytest.mark.parametrize("duration, warned", [(0.5, True), (8.0, False)])
+def test_a_test_record_shorter_than_a_swing_is_said(tmp_path, duration, warned):
+    """A twelfth outside check's 0.4 s test record (under half a period of its 1 s response)
+    passed without a word; ``x'' + 0.4 x' + 6 x = f`` (a period of 2.6 s) tested on 0.5 s is
+    said to rest on little, on 8 s it is not."""
+    import json
+
+    from cvxid.app.cli import main
+
+    from .conftest import TEST_SIMULATED, TRAIN_SIMULATED
+
+    text = ('name = "short"\n[truth]\nmass = 1.0\ncoefficients = { "x\'" = 0.4, "x" = 6.0 }\n' + TRAIN_SIMULATED
+            + "\n" + TEST_SIMULATED.replace("duration = 8.0", f"duration = {duration}")
+            + '\n[model.library]\nterms = ["x", "x\'"]\n[fit]\nestimator = "lstsq"\n')
+    (tmp_path / "spec.toml").write_text(text)
+    assert main(["run", str(tmp_path / "spec.toml"), "--quiet", "--out", str(tmp_path / "out")]) == 0
+    said = [w for w in json.loads((tmp_path / "out" / "result.json").read_text())["warnings"]
+            if "less than one period" in w]
+    assert bool(said) == warned, said
+    if warned:
+        assert said[0].startswith("the test record spans 0.5 s") and "[data.test] fraction" in said[0]

@@ -41,7 +41,7 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import band_period, noise_level
+from cvxid.metrics import band_period, noise_level, spectral_peak
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
@@ -88,6 +88,7 @@ def run(spec, train=None, test=None) -> RunResult:
         _warn_drift(result)
         _warn_incomplete(result)
         _warn_quiet_test(result)
+        _warn_short_test(result)
     polished = (result.tau or {}).get("method") == "output_error"  # its delay supersedes the equation error's
     said = dict.fromkeys([(note, CvxidWarning) for note in spec.notes] + [
         (str(w.message), w.category) for w in caught if issubclass(w.category, CvxidWarning)
@@ -713,6 +714,25 @@ def _warn_quiet_test(out: RunResult) -> None:
                 "diagnosis's choices made on it, rest on little; give a test record with more motion (or less "
                 "noise)",
                 CvxidWarning, stacklevel=2)
+
+
+def _warn_short_test(out: RunResult) -> None:
+    """A test record shorter than one period of the training response's dominant oscillation
+    (its spectral peak, :func:`~cvxid.metrics.spectral_peak`), said aloud: its free run tests
+    a fraction of a swing, and the diagnosis's choices made on it rest on little (a twelfth
+    outside check's 0.4 s test record, under half a period, passed without a word beside a
+    fit of −647 % from the record's own start)."""
+    if out.test is None:
+        return
+    length = float(out.test.time[-1] - out.test.time[0])
+    coordinate = next(iter(out.system.specs.values())).coordinate
+    period = spectral_peak(out.train.output(coordinate), out.train.dt).period
+    if length < period:
+        warnings.warn(
+            f"the test record spans {length:.3g} s, less than one period ({period:.3g} s) of the response's dominant "
+            "oscillation in the training record: its free run tests a fraction of a swing, so its fit, and the "
+            "diagnosis's choices made on it, rest on little; give a longer test record ([data.test] fraction or "
+            "samples)", CvxidWarning, stacklevel=2)
 
 
 def _best_velocity(spec) -> RunResult:
