@@ -14,8 +14,8 @@
 # for `SEEDS` noise seeds (default 4), on the same data: with the spec's Taylor delay the
 # paper's thresholded least squares (`stlsq`, Savitzky–Golay velocity), cvxid's default
 # convex selection (`adaptive_lasso`) and its selection by simulation error
-# (`stepwise_oe`), and the lasso with the output-error polish and the pruning of the
-# selected terms by simulation error (`[fit] prune`, the default); with an exact delay
+# (`stepwise_oe`), and the lasso and the adaptive lasso with the output-error polish and the
+# pruning of the selected terms by simulation error (`[fit] prune`, the default); with an exact delay
 # (`method = "exact"`, `tau_max = 0.5`) the lasso with the polish, without and with the
 # pruning, and `stepwise_oe`.  It prints whether
 # each found the true support and its parameter errors.
@@ -40,6 +40,7 @@ VARIANTS = {  # name: (the delay, [fit] settings)
     "adaptive_lasso": (None, {"estimator": "adaptive_lasso"}),
     "stepwise_oe": (None, {"estimator": "stepwise_oe"}),
     "lasso + polish + pruning": (None, {"estimator": "lasso", "refine": "output_error"}),
+    "adaptive_lasso + polish + pruning": (None, {"estimator": "adaptive_lasso", "refine": "output_error"}),
     "exact delay, lasso + polish, no pruning": (EXACT, {"estimator": "lasso", "refine": "output_error",
                                                         "prune": False}),
     "exact delay, lasso + polish + pruning": (EXACT, {"estimator": "lasso", "refine": "output_error"}),
