@@ -299,8 +299,15 @@ def profile_step(system: IdentifiedSystem, experiments: list[Experiment]) -> flo
     it is, :func:`_stride`).  On the held-out diagnosis benchmark (100 systems, report
     seeds) the estimates and intervals were those of the 1 ms step within a few digits,
     the benchmark 31 % faster."""
-    period = min(band_period([e.output(c) for c in system.coordinates], e.dt) for e in experiments)
-    return max(experiments[0].dt, PROFILE_PHASE * period / (2 * np.pi))
+    return max(experiments[0].dt, PROFILE_PHASE * _band_period(system, experiments) / (2 * np.pi))
+
+
+def _band_period(system: IdentifiedSystem, experiments) -> float:
+    """The shortest band period of the coordinates' records (:func:`~cvxid.metrics.band_period`),
+    each computed once per record (:func:`~cvxid.data.remembered.remembered`)."""
+    return min(remembered(e, ("band period", tuple(system.coordinates)),
+                          lambda e=e: band_period([e.output(c) for c in system.coordinates], e.dt))
+               for e in experiments)
 
 
 @one_blas_thread
@@ -498,10 +505,8 @@ def _grid(system: IdentifiedSystem, experiments, least: int) -> int:
     if narrow_band(system, experiments) is None:
         return least
     delay = next(iter(system.specs.values())).delay
-    period = min(remembered(e, ("band period", tuple(system.coordinates)),
-                            lambda e=e: band_period([e.output(c) for c in system.coordinates], e.dt))
-                 for e in experiments)
-    return max(least, min(MAX_GRID, int(np.ceil((delay.tau_max - delay.tau_min) / (SPACING * period))) + 1))
+    spacing = SPACING * _band_period(system, experiments)
+    return max(least, min(MAX_GRID, int(np.ceil((delay.tau_max - delay.tau_min) / spacing)) + 1))
 
 
 def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float | Step, grid: int) -> dict:
@@ -621,6 +626,11 @@ def _basin_fits(points: dict, experiments, step: float | Step) -> None:
             points[at] = (again.rms_after, again)
 
 
+LONGEST_SHARE = 0.5
+"""A delay past the search range is looked for only where the shortest record holds this
+share of itself after the delay (the simulations start that late)."""
+
+
 def longer_delay(best: PolishResult, experiments) -> LongerDelay | None:
     """A delay past the search range whose fit simulates the training records better than
     ``best``'s beyond chance, in a narrow-band record (:func:`narrow_band`): the aliases of
@@ -669,11 +679,6 @@ def longer_delay(best: PolishResult, experiments) -> LongerDelay | None:
         return None
     return LongerDelay(float(found.parameters["tau"]), found.parameters.get("gain"), found.rms_after,
                        estimate.rms_after, period, delay.tau_max)
-
-
-LONGEST_SHARE = 0.5
-"""A delay past the search range is looked for only where the shortest record holds this
-share of itself after the delay (the simulations start that late)."""
 
 
 def _with_delay(system: IdentifiedSystem, delay) -> IdentifiedSystem:
