@@ -31,7 +31,6 @@
 # %%
 import os
 import re
-import subprocess
 import sys
 import tempfile
 import warnings
@@ -95,15 +94,11 @@ def table(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 # %%
-if os.environ.get("NARROW_BAND_ROWS_ONLY"):  # (the baseline's own process: its rows, nothing else)
-    example_runs(one, [(r,) for r in RANGES], os.environ["NARROW_BAND_ROWS_ONLY"])
+if os.environ.get("ROWS_ONLY"):  # (a baseline's own process: its rows, nothing else)
+    example_runs(one, [(r,) for r in RANGES], os.environ["ROWS_ONLY"])
     sys.exit(0)
-frame = example_runs(one, [(r,) for r in RANGES], "narrow_band_delays").assign(version="this")
-if os.environ.get("BASELINE"):
-    folder = os.environ.get("OUT", ".")
-    subprocess.run([sys.executable, __file__], check=True, env={
-        **os.environ, "PYTHONPATH": os.environ["BASELINE"], "NARROW_BAND_ROWS_ONLY": "narrow_band_baseline"})
-    frame = pd.concat([pd.read_csv(os.path.join(folder, "narrow_band_baseline.csv")).assign(version="baseline"),
-                       frame])
+from cvxid.tools.heldout import with_baseline  # noqa: E402  (after the baseline's exit: an older cvxid lacks it)
+
+frame = with_baseline(example_runs(one, [(r,) for r in RANGES], "narrow_band_delays"), __file__, "narrow_band_delays")
 pd.set_option("display.width", 200)
 print(table(frame).to_string(float_format=lambda v: f"{v:.3g}"))

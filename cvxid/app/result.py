@@ -23,6 +23,7 @@ from cvxid.errors import CvxidError
 from cvxid.metrics import relative_error_percent
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
+from cvxid.identify.given import checked_line
 from cvxid.identify.selection import Stability
 from cvxid.identify.orders import OrderSearch
 from cvxid.identify.output_error import PolishResult
@@ -180,6 +181,7 @@ class RunResult:
                 "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
                 "longer_delay": None if self.polish.longer_delay is None else asdict(self.polish.longer_delay),
+                "given": [check.as_dict() for check in self.polish.given],
                 "standard_errors": {self._key(name): se for name, se in self.polish.standard_errors.items()},
                 "intervals": {self._key(name): list(self.polish.physical_interval(name))
                               for name in self.polish.parameters},
@@ -311,6 +313,7 @@ class RunResult:
                + (f", 95 % interval {self.input_delay['interval'][0]:.5g} … {self.input_delay['interval'][1]:.5g})"
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
             *([f"  {self.polish.summary()}"] if self.polish else []),
+            *([f"  {checked_line(self.polish.given)}"] if self.polish and self.polish.given else []),
             "",
             frame.to_string(float_format=lambda v: f"{v:.5g}", na_rep="–"),  # (significant digits: a mass of
             #                                                              1e-3 reads; – where nothing was estimated)
@@ -349,6 +352,8 @@ class RunResult:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:
             lines.append(f"  {self.polish.summary()}")
+            if self.polish.given:
+                lines.append(f"  {checked_line(self.polish.given)}")
         if self.bootstrap is not None:
             b, apart = self.bootstrap, self._bootstrap_apart()
             lines.append(f"  bootstrap: {len(b.coefficients)} samples of {100 * b.settings.fraction:.3g} % of the rows "

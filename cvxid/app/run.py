@@ -31,6 +31,7 @@ from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine, zeroed
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
+from cvxid.identify.given import check_given
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
@@ -81,6 +82,8 @@ def run(spec, train=None, test=None) -> RunResult:
         else:
             result = _identify(spec)
         _look_past_the_range(result)
+        _check_given(result)
+        _warn_given(result)
         _compare(result)
         _warn_confounded_gain(result)
         _warn_delay_at_bound(result)
@@ -227,6 +230,53 @@ def _look_past_the_range(out: RunResult) -> None:
         out.polish = replace(out.polish, longer_delay=found)
 
 
+def _check_given(out: RunResult) -> None:
+    """The values the spec gives (a mass, a feedback gain, a tie) tested against the
+    training record at the final polish (:func:`~cvxid.identify.given.check_given`), into
+    ``out.polish.given``; :func:`_warn_given` says which the record disagrees with."""
+    if out.polish is None:
+        return
+    checks = check_given(out.polish, out.train, _schedule(out.system.spec))
+    if checks:
+        out.polish = replace(out.polish, given=checks)
+
+
+def _disagreeing(out: RunResult) -> list:
+    return [c for c in (out.polish.given if out.polish is not None else ()) if c.disagrees]
+
+
+def _warn_given(out: RunResult) -> None:
+    """Given values the record disagrees with, each with what it becomes when estimated
+    (a thirteenth outside check: a mass 10 % high moved the delay from 0.15 to 0.367 s
+    and the damping by -56 %, in silence)."""
+    wrong = _disagreeing(out)
+    if wrong:
+        warnings.warn(
+            "the record disagrees with " + ("a value" if len(wrong) == 1 else "values") + " the spec gives, which the "
+            "fit takes as exact (freed, the model polished again simulates the training record better beyond chance): "
+            + "; ".join(c.sentence() for c in sorted(wrong, key=lambda c: c.rms)) + ". The parameters and intervals reported hold only if every "
+            "given value is right: check " + ("it" if len(wrong) == 1 else "them, the one whose estimate is plausible "
+                                             "first") + " (a missing effect can also make a right value look wrong)",
+            CvxidWarning, stacklevel=2)
+
+
+def _given_note(out: RunResult, besides: tuple[str, ...] = ()) -> str:
+    """For the warnings about a delay: the given values the record disagrees with, else
+    the values the spec gives (kinds in ``besides`` left out, said by the warning itself),
+    which move the delay when wrong, else nothing (a thirteenth outside check: a mass 20 %
+    high sent the delay to the top of its range, and the warning said to raise it)."""
+    wrong = _disagreeing(out)
+    if wrong:
+        return (f"; the record also disagrees with {', '.join(c.what for c in wrong)} (the warning above), and a "
+                "wrong given value moves the delay: check " + ("it" if len(wrong) == 1 else "them") + " first")
+    given = [c.stated for c in (out.polish.given if out.polish is not None else ()) if c.kind not in besides]
+    if not given:
+        return ""
+    return (f"; the spec also gives {', '.join(given)}, and a wrong given value moves the delay too (a delay at a "
+            "bound of its range hides it from the check of given values): estimate " + ("it" if len(given) == 1 else
+                                                                                         "them") + " once to compare")
+
+
 def _warn_delay_at_bound(out: RunResult) -> None:
     r"""A fed-back delay estimated at an end of its search range, or not determined, said
     aloud: at ``tau_max`` the true delay may be longer (unless the estimated gain's interval
@@ -301,7 +351,9 @@ def _warn_delay_at_bound(out: RunResult) -> None:
                                       else "Give a") +
             " longer record, or one whose forcing reaches the frequencies where the delay shifts the phase")
     if text is not None:
-        warnings.warn(text + _added_delay_note(out), CvxidWarning, stacklevel=2)
+        gain_said = estimate <= bottom and delay.gain is not None  # (the delay at 0 names a given gain itself)
+        warnings.warn(text + _given_note(out, ("gain",) if gain_said else ()) + _added_delay_note(out), CvxidWarning,
+                      stacklevel=2)
 
 
 def _added_effects(out: RunResult) -> list[str]:

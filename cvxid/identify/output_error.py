@@ -179,6 +179,7 @@ class PolishResult:
     # (both from the solver's Jacobian, whichever standard error is reported)
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
     longer_delay: LongerDelay | None = None  # a delay past the search range that fits better (its alias is this)
+    given: tuple = ()  # the spec's given values tested against the record (cvxid.identify.given.GivenCheck)
 
     def __repr__(self) -> str:
         shown = [n for n in self.parameters if n not in self.states]
@@ -1188,7 +1189,7 @@ class _Problem:
                     for e, k, p in zip(experiments, self.starts, periods)]
         typical, period = measured[0], periods[0]
         columns = {}  # system column -> parameter slot
-        names, start, lower, gain_names, natural, gain_natural = [], [], [], [], [], []
+        names, start, lower, natural, gains = [], [], [], [], []  # gains: (label, name, natural size) of each free one
         for label, model in system.models.items():
             spec, s = model.spec, self.systems[label]
             if spec.inertia:
@@ -1214,8 +1215,7 @@ class _Problem:
                 natural.append(force / remembered(experiments[0], ("size", term, tuple(self.coordinates), self.starts[0]),
                                                   lambda term=term: typical_size(term.evaluate(typical))))
             if self.delay is not None and spec.delay.gain is None:
-                gain_names.append(self._name(label, "gain", "gain"))
-                gain_natural.append(force / typical_size(typical[self.delay.coordinate]))
+                gains.append((label, self._name(label, "gain", "gain"), force / typical_size(typical[self.delay.coordinate])))
         if self.delay is not None and self.fixed_tau is None:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
@@ -1231,7 +1231,7 @@ class _Problem:
         self.input_splines = [[CubicSpline(e.time, e.input(m.spec.input)) for m in system.models.values()]
                               for e in experiments] if self.input_delay is not None else None
         if self.delay is not None:
-            for label, name, scale in zip(system.models, gain_names, gain_natural):
+            for label, name, scale in gains:  # (a coupled equation's given gain has none: one given, one free)
                 names.append(name)
                 start.append(float(self.systems[label].gain))
                 lower.append(-np.inf)

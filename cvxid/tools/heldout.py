@@ -647,6 +647,26 @@ def example_runs(one, cases, name: str) -> pd.DataFrame:
     return frame
 
 
+def with_baseline(frame: pd.DataFrame, script: str, name: str) -> pd.DataFrame:
+    """``frame`` (an example's rows by :func:`example_runs`, ``version = "this"``) and, with
+    ``BASELINE`` in the environment (a folder holding an older ``cvxid/``), the same rows
+    by that copy: ``script`` run again in its own process on it, with ``ROWS_ONLY`` set to
+    the file name its rows go to (the script then writes them and stops, before importing
+    this function, which an older copy may lack), ``version = "baseline"``."""
+    import os
+    import subprocess
+    import sys
+
+    frame = frame.assign(version="this")
+    baseline = os.environ.get("BASELINE")
+    if not baseline:
+        return frame
+    subprocess.run([sys.executable, script], check=True,
+                   env={**os.environ, "PYTHONPATH": baseline, "ROWS_ONLY": f"{name}_baseline"})
+    rows = pd.read_csv(os.path.join(os.environ.get("OUT", "."), f"{name}_baseline.csv"))
+    return pd.concat([rows.assign(version="baseline"), frame])
+
+
 def delay_errors(groups) -> dict[str, pd.Series]:
     """Per group of rows with ``tau error %`` and ``covers``: the systems, the median and
     90th percentile of |tau error| % and the intervals that cover the truth."""
