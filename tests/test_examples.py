@@ -278,11 +278,13 @@ def test_narrow_band_delays_find_their_basin_and_a_longer_delay(monkeypatch, tmp
 def test_given_values_wrong_masses_are_said_and_right_values_are_not(monkeypatch, tmp_path, capsys):
     """Tuning seed 0 of examples/given_values.py: the mass given 10 % high or low is said,
     as the value whose release fits best, its estimate's interval holding the truth; no
-    right value (mass, gain, tie) is said.  A gain 20 % high and a tie 1.5 times too large
-    are not said on this system: the stiffness and the delay absorb them within the noise."""
+    right value (mass, gain, tie) is said alone.  A gain 20 % high and a tie 1.5 times too
+    large are not said on this system: the stiffness and the delay absorb them within the
+    noise (measured on 20 report-seed runs too: docs/benchmarks.md)."""
     run_example("given_values.py", monkeypatch, tmp_path, capsys, SEEDS="0:1")
     rows = pd.read_csv(tmp_path / "given_values.csv").set_index("case")
     for case in ("mass +10 %", "mass -10 %"):
-        assert rows.loc[case, "given warning"] and rows.loc[case, "culprit best"] and rows.loc[case, "freed covers"]
-    for case in ("mass right", "gain right", "tie right"):
-        assert not rows.loc[case, "given warning"], case
+        assert rows.loc[case, "wrong value said"] and rows.loc[case, "wrong fits best"], case
+        assert rows.loc[case, "freed covers"], case
+    for case in ("mass right", "gain right", "tie right", "gain +20 %", "tie x1.5"):
+        assert not rows.loc[case, "right value said"] and not rows.loc[case, "wrong value said"], case

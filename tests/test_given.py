@@ -79,7 +79,7 @@ def test_a_mass_given_10_percent_high_is_said_with_its_estimate_and_where_the_de
 
 def test_right_given_values_raise_no_alarm():
     out = run(spec("inertia = false\nmass = 1.0", '[[model.tie]]\nleft = "x^3"\nright = "x"\nfactor = 0.3333333333'))
-    checks = out.polish.given
+    checks = out.given
     assert {c.kind for c in checks} == {"mass", "gain", "tie"}
     assert not any(c.disagrees for c in checks)
     assert not any("disagrees with" in w for w in out.warnings)
@@ -88,11 +88,35 @@ def test_right_given_values_raise_no_alarm():
 
 def test_a_tie_the_record_contradicts_is_said_with_the_factor_it_wants():
     out = run(spec("", '[[model.tie]]\nleft = "x^3"\nright = "x"\nfactor = 0.2'))
-    tie = next(c for c in out.polish.given if c.kind == "tie")
+    tie = next(c for c in out.given if c.kind == "tie")
     assert tie.disagrees and tie.what == "the tie x^3 = 0.2 x"
     assert tie.estimate == pytest.approx(TRUTH["x^3"] / TRUTH["x"], rel=0.05)  # (the factor 1/3)
     said = next(w for w in out.warnings if "disagrees with" in w)
-    assert "the tie x^3 = 0.2 x: its factor estimated" in said and "remove that [[model.tie]]" in said
+    assert "the tie x^3 = 0.2 x: its factor estimated" in said and "untie them ([[model.tie]])" in said
+
+
+def test_a_gain_20_percent_high_that_the_stiffness_absorbs_is_checked_and_not_said():
+    """The record cannot reject it: the stiffness and the delay take it up within the noise
+    (a thirteenth outside check's five systems; the run says it checked, not that it is right)."""
+    out = run(spec())  # (the gain 1.5 given right: the reference fit)
+    high = run(parse_problem(tomllib.loads(text().replace("gain = 1.5", "gain = 1.8")), ROOT))
+    gain = next(c for c in high.given if c.kind == "gain")
+    assert not gain.disagrees and not gain.reason and gain.p > 0.01
+    assert high.polish.rms_after < 1.02 * out.polish.rms_after  # (the same simulation error, within 2 %)
+    assert "the feedback gain = 1.8 p = " in high.summary()
+
+
+def test_a_taylor_delay_with_a_given_mass_is_polished_and_its_values_listed_unchecked():
+    """The polish re-added a Taylor delay's share to a given mass's x'' column on every
+    update and ended in a traceback from scipy (ValueError: array must not contain infs or
+    NaNs); its given values cannot be freed apart from the delay's shares and are listed
+    as not checked."""
+    taylor = text("inertia = false\nmass = 1.1").replace('method = "exact"', 'method = "taylor"').replace(
+        "tau_max = 0.5\n", "")
+    out = run(parse_problem(tomllib.loads(taylor), ROOT))
+    assert out.model.system().mass == pytest.approx(1.1) and np.isfinite(out.polish.rms_after)
+    assert {c.kind for c in out.given} == {"mass", "gain"} and all("Taylor" in c.reason for c in out.given)
+    assert "the mass m = 1.1 not checked (a Taylor delay's model, whose columns" in out.summary()
 
 
 def test_a_coupled_system_with_one_given_and_one_free_gain_simulates_at_its_own_gains():
@@ -106,5 +130,7 @@ def test_a_coupled_system_with_one_given_and_one_free_gain_simulates_at_its_own_
     assert text.count("delay_gain") == COUPLED.count("delay_gain") - 1 and "x^3\"]" in text
     out = run(parse_problem(tomllib.loads(text), ROOT))
     assert "y:gain" in out.polish.parameters and "x:gain" not in out.polish.parameters
+    gain = out.to_dict()["polish"]["given"]
+    assert [c["kind"] for c in gain] == ["gain"] and gain[0]["name"] == "x:gain" and not gain[0]["disagrees"]
     r = residual(out.polish.system, [out.train], out.polish.initial)
     assert np.sqrt(np.mean(r**2)) == pytest.approx(out.polish.rms_after, rel=1e-6)

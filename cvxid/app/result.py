@@ -23,7 +23,7 @@ from cvxid.errors import CvxidError
 from cvxid.metrics import relative_error_percent
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.bootstrap import Bootstrap
-from cvxid.identify.given import checked_line
+from cvxid.identify.given import GivenCheck, checked_line
 from cvxid.identify.selection import Stability
 from cvxid.identify.orders import OrderSearch
 from cvxid.identify.output_error import PolishResult
@@ -67,6 +67,7 @@ class RunResult:
     stability: Stability | None = None  # stability selection's inclusion probabilities
     pruning: Pruning | None = None  # [fit] prune: the selected terms pruned by simulation error
     unpolished: IdentifiedSystem | None = None  # the model the output-error polish started from
+    given: tuple[GivenCheck, ...] = ()  # the values the spec gives, tested against the record after the polish
 
     @property
     def coupled(self) -> bool:
@@ -181,7 +182,7 @@ class RunResult:
                 "jacobian_spread_at": self.polish.jacobian_spread_at,
                 "input_noise_inflation": self.polish.input_noise_inflation,
                 "longer_delay": None if self.polish.longer_delay is None else asdict(self.polish.longer_delay),
-                "given": [check.as_dict() for check in self.polish.given],
+                "given": [{**check.as_dict(), "name": self._key(check.name)} for check in self.given],
                 "standard_errors": {self._key(name): se for name, se in self.polish.standard_errors.items()},
                 "intervals": {self._key(name): list(self.polish.physical_interval(name))
                               for name in self.polish.parameters},
@@ -313,7 +314,7 @@ class RunResult:
                + (f", 95 % interval {self.input_delay['interval'][0]:.5g} … {self.input_delay['interval'][1]:.5g})"
                   if self.input_delay["interval"] else ")")] if self.input_delay else []),
             *([f"  {self.polish.summary()}"] if self.polish else []),
-            *([f"  {checked_line(self.polish.given)}"] if self.polish and self.polish.given else []),
+            *([f"  {checked_line(self.given)}"] if self.given else []),
             "",
             frame.to_string(float_format=lambda v: f"{v:.5g}", na_rep="–"),  # (significant digits: a mass of
             #                                                              1e-3 reads; – where nothing was estimated)
@@ -352,8 +353,8 @@ class RunResult:
             lines.append("  test: no test experiment ([data.test]) to score on")
         if self.polish is not None:
             lines.append(f"  {self.polish.summary()}")
-            if self.polish.given:
-                lines.append(f"  {checked_line(self.polish.given)}")
+        if self.given:
+            lines.append(f"  {checked_line(self.given)}")
         if self.bootstrap is not None:
             b, apart = self.bootstrap, self._bootstrap_apart()
             lines.append(f"  bootstrap: {len(b.coefficients)} samples of {100 * b.settings.fraction:.3g} % of the rows "

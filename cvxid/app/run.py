@@ -233,48 +233,53 @@ def _look_past_the_range(out: RunResult) -> None:
 def _check_given(out: RunResult) -> None:
     """The values the spec gives (a mass, a feedback gain, a tie) tested against the
     training record at the final polish (:func:`~cvxid.identify.given.check_given`), into
-    ``out.polish.given``; :func:`_warn_given` says which the record disagrees with."""
-    if out.polish is None:
-        return
-    checks = check_given(out.polish, out.train, _schedule(out.system.spec))
-    if checks:
-        out.polish = replace(out.polish, given=checks)
+    ``out.given``; :func:`_warn_given` says which the record disagrees with."""
+    if out.polish is not None:
+        out.given = check_given(out.polish, out.train, _schedule(out.system.spec))
 
 
 def _disagreeing(out: RunResult) -> list:
-    return [c for c in (out.polish.given if out.polish is not None else ()) if c.disagrees]
+    return sorted((c for c in out.given if c.disagrees), key=lambda c: c.rms)
 
 
 def _warn_given(out: RunResult) -> None:
     """Given values the record disagrees with, each with what it becomes when estimated
     (a thirteenth outside check: a mass 10 % high moved the delay from 0.15 to 0.367 s
-    and the damping by -56 %, in silence)."""
+    and the damping by -56 %, and the run never named the mass).  Where several disagree,
+    freeing any one of them may fit the record alike (a wrong mass, or the right gain
+    trading with the stiffness): the run says so and leaves the choice to the reader."""
     wrong = _disagreeing(out)
-    if wrong:
-        warnings.warn(
-            "the record disagrees with " + ("a value" if len(wrong) == 1 else "values") + " the spec gives, which the "
-            "fit takes as exact (freed, the model polished again simulates the training record better beyond chance): "
-            + "; ".join(c.sentence() for c in sorted(wrong, key=lambda c: c.rms)) + ". The parameters and intervals reported hold only if every "
-            "given value is right: check " + ("it" if len(wrong) == 1 else "them, the one whose estimate is plausible "
-                                             "first") + " (a missing effect can also make a right value look wrong)",
-            CvxidWarning, stacklevel=2)
+    if not wrong:
+        return
+    several = len(wrong) > 1
+    warnings.warn(
+        ("the record disagrees with values the spec gives, which the fit takes as exact: freeing any one of them "
+         "fits the training record better beyond chance and moves it by more than 1 % — " if several else
+         "the record disagrees with a value the spec gives, which the fit takes as exact: freed, it moves by more "
+         "than 1 % and the model, polished again, fits the training record better beyond chance — ")
+        + "; ".join(c.sentence() for c in wrong) + (
+            ". Where their errors are alike the record cannot tell which is wrong: the one whose estimate is "
+            "plausible is the suspect" if several else "")
+        + ". The parameters and intervals reported hold only if every given value is right (a missing effect can "
+          "also make a right value look wrong)", CvxidWarning, stacklevel=2)
 
 
-def _given_note(out: RunResult, besides: tuple[str, ...] = ()) -> str:
-    """For the warnings about a delay: the given values the record disagrees with, else
-    the values the spec gives (kinds in ``besides`` left out, said by the warning itself),
-    which move the delay when wrong, else nothing (a thirteenth outside check: a mass 20 %
-    high sent the delay to the top of its range, and the warning said to raise it)."""
+def _given_note(out: RunResult, besides: tuple[str, ...] = (), passing: bool = True) -> str:
+    """For a warning about the delay: the given values the record disagrees with, else
+    (with ``passing``: the delay at a bound of its range) the values the spec gives that
+    were checked (kinds in ``besides`` left out, the warning names them itself), which move
+    the delay when wrong (a thirteenth outside check: a mass 20 % high sent the delay to
+    the top of its range, and the warning said to raise it), else nothing."""
     wrong = _disagreeing(out)
     if wrong:
-        return (f"; the record also disagrees with {', '.join(c.what for c in wrong)} (the warning above), and a "
+        return (f"; the record also disagrees with {', '.join(c.stated for c in wrong)} (the warning above), and a "
                 "wrong given value moves the delay: check " + ("it" if len(wrong) == 1 else "them") + " first")
-    given = [c.stated for c in (out.polish.given if out.polish is not None else ()) if c.kind not in besides]
+    given = [c.stated for c in out.given if c.kind not in besides and not c.reason] if passing else []
     if not given:
         return ""
-    return (f"; the spec also gives {', '.join(given)}, and a wrong given value moves the delay too (a delay at a "
-            "bound of its range hides it from the check of given values): estimate " + ("it" if len(given) == 1 else
-                                                                                         "them") + " once to compare")
+    return (f"; the spec also gives {', '.join(given)}: the record does not reject "
+            + ("it" if len(given) == 1 else "them") + ", yet a wrong given value moves the delay too (estimate "
+            + ("it" if len(given) == 1 else "them") + " once to compare)")
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
@@ -302,7 +307,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
-    text = None
+    text, note = None, _given_note(out)  # (the delay at a bound: a given value may hold it there)
     top = _at_top(estimate, delay) or (  # (or its interval reaches the top, and is not the whole range)
         interval is not None and interval[1] >= delay.tau_max - tolerance and not _spans_range(interval, delay))
     if top and said and (gain is None or gain[0] <= 0 <= gain[1]):
@@ -334,6 +339,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min")
     elif estimate <= bottom and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
+        note = _given_note(out, ("gain",))  # (this warning names a given gain itself)
         text = (
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
@@ -343,6 +349,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
                 "to 0, the stiffness absorbing the feedback (at tau = 0 it is the column x itself); leave the gain "
                 "out of [model.delay] to estimate it and compare" if delay.gain is not None else ""))
     elif _spans_range(interval, delay) and not said:
+        note = _given_note(out, passing=False)  # (at no bound: only a value the record disagrees with)
         text = (
             f"the delay is not determined by these data: its 95 % interval {interval[0]:.4g} … {interval[1]:.4g} s "
             f"spans most of the search range {delay.tau_min:g} … {delay.tau_max:g} s, so the estimate {estimate:.4g} "
@@ -351,9 +358,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
                                       else "Give a") +
             " longer record, or one whose forcing reaches the frequencies where the delay shifts the phase")
     if text is not None:
-        gain_said = estimate <= bottom and delay.gain is not None  # (the delay at 0 names a given gain itself)
-        warnings.warn(text + _given_note(out, ("gain",) if gain_said else ()) + _added_delay_note(out), CvxidWarning,
-                      stacklevel=2)
+        warnings.warn(text + note + _added_delay_note(out), CvxidWarning, stacklevel=2)
 
 
 def _added_effects(out: RunResult) -> list[str]:

@@ -12,38 +12,40 @@ After the run's final output-error polish :math:`\hat\theta` (residual :math:`r`
 training record, Jacobian :math:`J` in its free parameters) each given value :math:`v` is
 tested by the **score (Lagrange-multiplier) test** of freeing it (:mod:`cvxid.identify.score`):
 with :math:`j_v = \partial r / \partial v` (the system with :math:`v` free, linearised at
-:math:`\hat\theta`),
+:math:`\hat\theta`: it must re-simulate :math:`r` there) and :math:`\delta` its Gauss–Newton step,
 
 .. math::
 
-    j_\perp = (I - J J^+)\, j_v, \qquad
-    \mathrm{LM}_v = \frac{(j_\perp^T r)^2}{j_\perp^T j_\perp\,\hat\sigma^2}\,\frac{n_{\rm eff}}{n},
-    \qquad \hat\sigma^2 = \frac{r^T r}{n - p},
+    j_\perp = (I - J J^+)\, j_v, \qquad \delta = -\frac{j_\perp^T r}{j_\perp^T j_\perp}, \qquad
+    r_1 = r + j_\perp \delta, \qquad
+    \mathrm{LM}_v = \frac{(j_\perp^T r)^2}{j_\perp^T j_\perp\,\hat\sigma_1^2}\,\frac{n_{\rm eff}(r_1)}{n},
+    \qquad \hat\sigma_1^2 = \frac{r_1^T r_1}{n - p - 1},
 
-:math:`\chi^2_1` when :math:`v` is right (:math:`n_{\rm eff}` the independent residuals,
-:func:`~cvxid.identify.profile.effective_rows`): one batch of simulations for :math:`J`,
-then one per value (:math:`j_v` by a forward difference), no fit.  A value whose statistic
-passes :data:`LEVEL` (shared by the values checked: Bonferroni) and whose Gauss–Newton step
-:math:`-j_\perp^T r / j_\perp^T j_\perp` reaches half of :data:`CHANGE` is freed and the model
-polished again, its delay profiled as the run's own
-(:func:`~cvxid.identify.output_error.polish`); the record **disagrees** with the value when
-that fit moves it by more than :data:`CHANGE` and its training simulation error falls
-beyond the profile's likelihood-ratio bound,
+:math:`\chi^2_1` when :math:`v` is right (then :math:`r_1 \approx r`; :math:`n_{\rm eff}` the
+independent residuals, :func:`~cvxid.identify.profile.effective_rows`, of the residual the
+freed fit would leave: a wrong value's smooth misfit in :math:`r` has few): one batch of
+simulations for :math:`J`, two per value, no fit.  A value whose statistic passes
+:data:`LEVEL` (shared by the values checked: Bonferroni) and whose step :math:`\delta`
+reaches half of :data:`CHANGE` is freed and the model polished again, its delay profiled as
+the run's own (:func:`~cvxid.identify.output_error.polish`); the record **disagrees** with the
+value when that fit moves it by more than :data:`CHANGE` and its training simulation error
+falls beyond the profile's likelihood-ratio bound on the freed fit's effective rows,
 
 .. math::
 
     \mathrm{SSE}_{\rm free} \,\big(1 + \kappa\,\chi^2_{1,1-\alpha}/n_{\rm eff}\big) < \mathrm{SSE}_{\rm given},
 
-(:math:`\kappa` the polish's input-noise inflation).  The given value stays (it is the
-user's); the run says which values the record disagrees with, what each becomes when
+(:math:`\kappa \ge 1` the freed polish's input-noise inflation).  The given value stays
+(it is the user's); the run says which values the record disagrees with, what each becomes when
 estimated and where the delay moves (a missing effect can also make a right value look
 wrong: where several disagree, the one whose estimate is plausible is the suspect).  A
 given value the record cannot tell from others (a known gain 20 % high that the stiffness
 and the delay absorb at the noise level) passes: the intervals then hold for the given
-value only.  A Taylor-expanded delay's gain is not checked (the expansion needs it), nor a
-known input delay; a delay pressed against a bound of its range is not free in :math:`J`
-(:func:`~cvxid.identify.output_error.linearisation`), so a wrong value that holds it there
-can pass (2 of 20 masses 10 % off on random held-out systems: ``examples/given_values.py``).
+value only.  A Taylor-expanded delay's model is not checked (its columns carry the delay's
+shares: its values are listed as not checked), nor a known input delay.  A delay pressed
+against a bound of its range is not free in :math:`J`
+(:func:`~cvxid.identify.output_error.linearisation`), and the score test cannot see a value
+that would pull it inside: there every given value is refitted (:func:`check_given`).
 """
 
 from __future__ import annotations
@@ -60,7 +62,7 @@ from cvxid.errors import CvxidError
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, linearisation, polish, residual
 from cvxid.identify.profile import effective_rows
-from cvxid.identify.score import score_gains
+from cvxid.identify.score import score_refit
 
 LEVEL = 0.01
 """The level of the score test and of the refit's bound, shared by the values checked
@@ -71,27 +73,36 @@ of it: a long record tells a value from one 0.004 % away (the shipped flexible j
 motor gain, its friction modelled as ``sign``, not the rig's ``tanh``), which moves
 nothing the run reports.  The refit runs only where the score test's Gauss–Newton step
 from the value reaches half of it (a first-order step into a valley can fall short)."""
+STEP = 1e-5
+"""The forward-difference step of a given value's column, relative to the value."""
+REPRODUCED = 1e-6
+"""The freed model at the given value must re-simulate the fit's residual to this share of
+its largest sample (else its column would measure a different model: not checked)."""
 
 
 @dataclass(frozen=True)
 class GivenCheck:
-    """One given value, tested at the final polish; when the score test flagged it, the
-    polish with it free (``estimate`` its value there, ``tau`` the delay, ``rms`` the
-    training simulation RMS against ``rms_given``)."""
+    """One given value and its test at the final polish: the score statistic, its p-value
+    and the first-order change it asks for; where the refit ran, the polish with the value
+    free (``estimate``: its value there, a tie's factor; ``tau`` the delay; ``rms`` the
+    training simulation RMS against ``rms_given``).  ``reason`` says why a value was not
+    checked (its statistic and p-value are then NaN)."""
 
-    name: str  # the parameter ("m", "gain", a tie's left column; "label:column" in a coupled system)
+    name: str  # the parameter as the polish names it ("m", "gain", a tie's left term; "label:column" when coupled)
     kind: str  # "mass", "gain" or "tie"
-    what: str  # said to a reader: "the mass m", "the tie x^3 = 0.2 x"
+    what: str  # said to a reader: "the mass m", "y's feedback gain", "the tie x^3 = 0.2 x"
     given: float  # the value (a tie's factor)
-    statistic: float  # the score statistic (chi-square, 1 degree of freedom)
-    p: float
+    statistic: float = np.nan  # the score statistic (chi-square, 1 degree of freedom)
+    p: float = np.nan
+    change: float = np.nan  # the score test's Gauss-Newton step, a share of the value
     disagrees: bool = False
     estimate: float | None = None
-    interval: tuple[float, float] | None = None
+    interval: tuple[float, float] | None = None  # (None for a tie's factor)
     tau: float | None = None
     rms: float | None = None
     rms_given: float | None = None
     fix: str = ""  # how to estimate it instead
+    reason: str = ""  # why it was not checked ("": checked)
 
     @property
     def stated(self) -> str:
@@ -102,28 +113,28 @@ class GivenCheck:
         """What the freed fit gave, for the run's warning."""
         interval = "" if self.interval is None or not np.all(np.isfinite(self.interval)) else \
             f" [{self.interval[0]:.4g}, {self.interval[1]:.4g}]"
+        flipped = " (the opposite sign)" if self.estimate * self.given < 0 else ""
         delay = "" if self.tau is None else f", the delay {self.tau:.4g} s"
         value = ": its factor estimated" if self.kind == "tie" else ": estimated"
-        return (f"{self.stated}{value}, {self.estimate:.4g}{interval}{delay}, simulation RMS "
-                f"{self.rms:.4g} against {self.rms_given:.4g} (score test p = {self.p:.1e}; {self.fix})")
+        return (f"{self.stated}{value}, {self.estimate:.4g}{interval}{flipped}{delay}, simulation RMS "
+                f"{self.rms:.4g} against {self.rms_given:.4g} (score test p {_p(self.p)}; {self.fix})")
 
     def as_dict(self) -> dict:
+        number = (lambda v: None if v is None or not np.isfinite(v) else float(v))
         return {"name": self.name, "kind": self.kind, "what": self.what, "given": self.given,
-                "statistic": self.statistic, "p": self.p, "disagrees": self.disagrees, "estimate": self.estimate,
-                "interval": None if self.interval is None else list(self.interval), "tau": self.tau, "rms": self.rms,
-                "rms_given": self.rms_given}
+                "checked": not self.reason, "reason": self.reason or None, "statistic": number(self.statistic),
+                "p": number(self.p), "change": number(self.change), "disagrees": self.disagrees,
+                "estimate": number(self.estimate), "interval": None if self.interval is None else list(self.interval),
+                "tau": number(self.tau), "rms": number(self.rms), "rms_given": number(self.rms_given)}
 
 
 @dataclass(frozen=True)
 class _Given:
-    parameter: str  # its name among the freed fit's parameters
-    kind: str
-    what: str
-    given: float
+    check: GivenCheck  # what is said of it before the test (name, kind, what, given, fix)
     value: float  # the parameter's value at the fit (a tie's left coefficient)
-    at: Callable[[float], IdentifiedSystem]  # the system with the value free, set to its argument
-    fix: str
-    tie: tuple[str, str, float] | None = None
+    at: Callable[[float], IdentifiedSystem] | None  # the system with the value free, set to its argument
+    #                                                  (None: a Taylor delay's gain, which the expansion needs)
+    ratio: tuple[str, str] | None = None  # a tie's (left, right) parameters: its factor after the refit
 
     @property
     def freed(self) -> IdentifiedSystem:
@@ -138,75 +149,100 @@ def _freed(system: IdentifiedSystem, label: str, spec, column: str, sign: float 
         spec, {**model.coefficients, column: sign * value}, model.lam, dict(model.info), model.tau)})
 
 
-def _untied(system: IdentifiedSystem, tie: tuple[str, str, float]):
-    """The function of a value giving ``system`` without ``tie``, its left column set to the value."""
-    untied = replace(system, ties=tuple(t for t in system.ties if t != tie))
-    label, column = (next(iter(system.models)), tie[0]) if system.single is not None else tie[0].split(":", 1)
-    return _freed(untied, label, system.models[label].spec, column)
-
-
 def _given_values(system: IdentifiedSystem) -> Iterator[_Given]:
-    """Each value ``system``'s specs give, with the system that estimates it."""
+    """Each value ``system``'s specs give, with the system that estimates it (a tie as the
+    fit keeps it: a chain of ties as a star)."""
     several = system.single is None
+
+    def name(label: str, physical: str, column: str) -> str:  # (as the polish names its parameters)
+        return f"{label}:{column}" if several else physical
+
     for label, model in system.models.items():
         spec = model.spec
-        where, named = (f" of {label}", lambda column: f"{label}:{column}") if several else ("", lambda column: None)
         if not spec.inertia:
-            yield _Given(named(spec.inertia_term.name) or "m", "mass", f"the mass{where} m", spec.mass, spec.mass,
-                         _freed(system, label, replace(spec, inertia=True), spec.inertia_term.name),
-                         "to estimate it: inertia = true" + (f" in {label}'s equation" if several else " in [model]"))
+            yield _Given(GivenCheck(name(label, "m", spec.inertia_term.name), "mass",
+                                    f"{label}'s mass" if several else "the mass m", float(spec.mass),
+                                    fix="to estimate it: inertia = true" + (
+                                        f" in {label}'s equation" if several else " in [model]")),
+                         spec.mass, _freed(system, label, replace(spec, inertia=True), spec.inertia_term.name))
         delay = spec.delay
-        if delay is not None and delay.gain is not None and delay.exact and delay.gain != 0:
-            yield _Given(named("gain") or "gain", "gain", f"the feedback gain{where}", delay.gain, delay.gain,
-                         _freed(system, label, replace(spec, delay=replace(delay, gain=None)), spec.delayed_term.name,
-                                -1.0),
-                         "to estimate it: leave out " + (f"{label}'s delay_gain" if several else "[model.delay] gain"))
+        if delay is not None and delay.gain is not None and delay.gain != 0:
+            yield _Given(GivenCheck(name(label, "gain", "gain"), "gain",
+                                    f"{label}'s feedback gain" if several else "the feedback gain", float(delay.gain),
+                                    fix="to estimate it: leave out " + (
+                                        f"{label}'s delay_gain" if several else "[model.delay] gain")),
+                         delay.gain, _freed(system, label, replace(spec, delay=replace(delay, gain=None)),
+                                            spec.delayed_term.name, -1.0) if delay.exact else None)
     for tie in system.ties:
         left, right, factor = tie
-        yield _Given(left if several else system.single.spec.parameter_name(left), "tie",
-                     f"the tie {left} = {factor:g} {right}", factor, system.coefficients.get(left, 0.0),
-                     _untied(system, tie), "to estimate both: remove that [[model.tie]]", tie)
-
-
-STEP = 1e-5
-"""The forward-difference step of a given value's column, relative to the value."""
+        label, column = (next(iter(system.models)), left) if not several else left.split(":", 1)
+        spec = system.models[label].spec
+        parameter = left if several else spec.parameter_name(left)
+        untied = replace(system, ties=tuple(t for t in system.ties if t != tie))
+        yield _Given(GivenCheck(parameter, "tie", f"the tie {left} = {factor:g} {right}", float(factor),
+                                fix="to estimate both: untie them ([[model.tie]])"),
+                     system.coefficients.get(left, 0.0), _freed(untied, label, spec, column),
+                     (parameter, right if several else spec.parameter_name(right)))
 
 
 def check_given(best: PolishResult, train: Experiment, schedule: dict | None = None) -> tuple[GivenCheck, ...]:
     """Every value ``best``'s specs give, tested on ``train`` (see the module docstring);
     empty when the specs give none.  ``schedule``: the run's polish settings, for the
-    refit of a value the score test flags.  One batch of simulations for the fit's
-    Jacobian, one simulation per value."""
-    given = [item for item in _given_values(best.system) if item.value != 0]
+    refits.  One batch of simulations for the fit's Jacobian and two simulations per value;
+    a full polish for each value refitted.
+
+    The statistic's noise is the residual's that freeing the value would leave, to first
+    order (:math:`r + j_\perp \delta`): a wrong value leaves a smooth misfit in :math:`r`,
+    whose few effective rows would cap the statistic at their number (a mass 10 % high on
+    a 4000-sample record: 15 effective rows, the statistic 12.5 for an 81 % fall).  Where
+    the fit holds the delay at a bound of its range, the delay is not free in :math:`J` and
+    a wrong value that holds it there scores low (two masses 10 % off on random held-out
+    systems: p = 0.02, the delay at 0): every value is then refitted, the
+    likelihood-ratio bound deciding alone."""
+    given = list(_given_values(best.system))
     if not given or not np.isfinite(best.rms_after):
         return ()
+    if any(m.spec.delay is not None and not m.spec.delay.exact for m in best.system.models.values()):
+        return tuple(replace(item.check, reason="a Taylor delay's model, whose columns carry the delay's shares")
+                     for item in given)
     try:
-        _, r, J = linearisation(best.system, [train], best.initial)
+        names, r, J = linearisation(best.system, [train], best.initial)
     except CvxidError:  # (a diverged simulation)
-        return ()
-    level, rows = LEVEL / len(given), effective_rows(r)
-    sigma2 = float(r @ r) / max(r.size - J.shape[1], 1)
+        return tuple(replace(item.check, reason="the fit does not simulate") for item in given)
+    pressed = "tau" in best.parameters and "tau" not in names
+    level = LEVEL / len(given)
     checks = []
     for item in given:
-        h = STEP * abs(item.value)
-        try:
-            column = (residual(item.at(item.value + h), [train], best.initial) - r) / h
-        except CvxidError:
-            continue
-        (gain,), (step,) = score_gains(r, J, column[:, None])
-        statistic = float(gain / sigma2 * rows / r.size)
-        check = GivenCheck(item.parameter, item.kind, item.what, float(item.given), statistic,
-                           float(chi2.sf(statistic, 1)), fix=item.fix)
-        if check.p < level and abs(step) >= CHANGE / 2 * abs(item.value):
+        check = _scored(item, best, train, r, J)
+        if not check.reason and (pressed or (check.p < level and abs(check.change) >= CHANGE / 2)):
             check = _refitted(check, item, best, train, schedule, level)
         checks.append(check)
     return tuple(checks)
 
 
+def _scored(item: _Given, best: PolishResult, train: Experiment, r: np.ndarray, J: np.ndarray) -> GivenCheck:
+    """``item``'s score test at the fit (residual ``r``, Jacobian ``J``)."""
+    if item.value == 0:
+        return replace(item.check, reason="its coefficient is 0 at the fit: nothing to move")
+    h = STEP * abs(item.value)
+    try:
+        own = residual(item.freed, [train], best.initial)
+        moved = residual(item.at(item.value + h), [train], best.initial)
+    except CvxidError:
+        return replace(item.check, reason="its freed model does not simulate")
+    if np.max(np.abs(own - r)) > REPRODUCED * np.max(np.abs(r)):
+        return replace(item.check, reason="its freed model does not reproduce the fit")
+    gain, step, after = score_refit(r, J, (moved - r) / h)
+    sigma2 = float(after @ after) / max(r.size - J.shape[1] - 1, 1)
+    statistic = float(gain / sigma2 * effective_rows(after) / r.size)
+    return replace(item.check, statistic=statistic, p=float(chi2.sf(statistic, 1)), change=float(step / item.value))
+
+
 def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experiment, schedule: dict | None,
               level: float) -> GivenCheck:
-    """``check`` with the polish of ``item.freed``: whether its simulation error falls
-    beyond the likelihood-ratio bound, the value it estimates and the delay."""
+    """``check`` with the polish of ``item.freed``: the value it estimates, the delay, and
+    whether it disagrees (its training simulation error beyond the likelihood-ratio bound
+    on the freed fit's effective rows, and the value moved by more than :data:`CHANGE`)."""
     try:
         with warnings.catch_warnings():  # (the run's own warnings are about the model it reports)
             warnings.simplefilter("ignore")
@@ -215,24 +251,34 @@ def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experi
         return check
     if not np.isfinite(free.rms_after):
         return check
-    if item.tie is None:
+    if item.ratio is None:
         estimate, interval = free.parameters[check.name], free.interval(check.name)
     else:
-        left, right, _ = item.tie
-        coefficients = free.system.coefficients
-        estimate, interval = coefficients[left] / coefficients[right] if coefficients.get(right) else np.nan, None
-    bound = 1 + best.input_noise_inflation * chi2.ppf(1 - level, 1) / max(best.effective_rows, 1.0)
-    disagrees = free.rms_after**2 * bound < best.rms_after**2 and abs(estimate - check.given) > CHANGE * abs(
-        check.given)
-    return replace(check, disagrees=bool(disagrees), estimate=float(estimate),
-                   interval=None if interval is None else (float(interval[0]), float(interval[1])),
+        left, right = (free.parameters.get(n, np.nan) for n in item.ratio)
+        estimate, interval = (left / right if right else np.nan), None
+    bound = 1 + max(free.input_noise_inflation, 1.0) * chi2.ppf(1 - level, 1) / max(free.effective_rows, 1.0)
+    moved = abs(estimate - check.given) > CHANGE * abs(check.given)
+    return replace(check, disagrees=bool(free.rms_after**2 * bound < best.rms_after**2 and moved),
+                   estimate=float(estimate), interval=None if interval is None else tuple(map(float, interval)),
                    tau=free.parameters.get("tau"), rms=float(free.rms_after), rms_given=float(best.rms_after))
 
 
 def checked_line(checks) -> str:
-    """One line for the run's printout: each given value and its score test's p-value,
-    those the record disagrees with marked ("" without checks)."""
+    """One line for the run's printout: each given value, its score test's p-value and the
+    first-order change it asks for, those the record disagrees with marked, those not
+    checked with why ("" without given values)."""
     if not checks:
         return ""
-    return "given values checked against the record (score test): " + "; ".join(
-        f"{c.stated} p = {c.p:.2g}" + (" DISAGREES (the warning below)" if c.disagrees else "") for c in checks)
+    said = []
+    for c in checks:
+        if c.reason:
+            said.append(f"{c.stated} not checked ({c.reason})")
+        else:
+            said.append(f"{c.stated} p {_p(c.p)}, change {100 * c.change:+.3g} %"
+                        + (" DISAGREES (the warning below)" if c.disagrees else ""))
+    return "given values checked against the record (score test): " + "; ".join(said)
+
+
+def _p(p: float) -> str:
+    """A p-value as printed: "= 0.42", "< 1e-16" (below what double precision holds)."""
+    return "< 1e-16" if p < 1e-16 else f"= {p:.2g}"

@@ -179,7 +179,6 @@ class PolishResult:
     # (both from the solver's Jacobian, whichever standard error is reported)
     states: frozenset = frozenset()  # the names of the initial-state parameters among ``parameters``
     longer_delay: LongerDelay | None = None  # a delay past the search range that fits better (its alias is this)
-    given: tuple = ()  # the spec's given values tested against the record (cvxid.identify.given.GivenCheck)
 
     def __repr__(self) -> str:
         shown = [n for n in self.parameters if n not in self.states]
@@ -1405,6 +1404,7 @@ def _updated(model: IdentifiedModel, system, params: dict) -> IdentifiedModel:
     if spec.delay is not None and not spec.delay.exact:
         for t in spec.delay.taylor_terms():
             if t.name in coefs:
-                base = coefs[t.name] if (t.name in spec.library or t.name == spec.inertia_term.name) else 0.0
+                physical = t.name in spec.library or (spec.inertia and t.name == spec.inertia_term.name)
+                base = coefs[t.name] if physical else 0.0  # (a given mass's x'' is the delay's column alone)
                 coefs[t.name] = base + spec.delay.contribution(t.order, tau)
     return IdentifiedModel(spec, coefs, model.lam, dict(model.info, refined="output_error"), tau)

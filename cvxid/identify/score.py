@@ -37,6 +37,18 @@ def score_gains(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray)
     return np.where(spanned, 0.0, along**2 / safe), np.where(spanned, 0.0, -along / safe)
 
 
+def score_refit(residual: np.ndarray, jacobian: np.ndarray, column: np.ndarray) -> tuple[float, float, np.ndarray]:
+    """:func:`score_gains` of one ``column`` ``(n,)``, with the residual its Gauss–Newton
+    step leaves to first order, :math:`r + j_\\perp \\delta_c` (whose square sum is
+    :math:`r^T r - \\Delta_c` when :math:`r` is orthogonal to the fit's columns)."""
+    perp = column - jacobian @ np.linalg.lstsq(jacobian, column, rcond=None)[0]
+    norm = float(perp @ perp)
+    if norm <= 1e-24 * max(float(column @ column), 1e-300):
+        return 0.0, 0.0, residual
+    step = -float(perp @ residual) / norm
+    return step**2 * norm, step, residual + step * perp
+
+
 def block_score_gain(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray]:
     r"""The first-order fall of the squared residual when every column of ``columns``
     ``(n, c)`` joins the fit together (one parameter added to several equations at once),
