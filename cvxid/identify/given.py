@@ -186,7 +186,7 @@ def _given_values(system: IdentifiedSystem) -> Iterator[_Given]:
 
 
 def check_given(best: PolishResult, train: Experiment, schedule: dict | None = None) -> tuple[GivenCheck, ...]:
-    """Every value ``best``'s specs give, tested on ``train`` (see the module docstring);
+    r"""Every value ``best``'s specs give, tested on ``train`` (see the module docstring);
     empty when the specs give none.  ``schedule``: the run's polish settings, for the
     refits.  One batch of simulations for the fit's Jacobian and two simulations per value;
     a full polish for each value refitted.
