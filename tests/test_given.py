@@ -99,11 +99,25 @@ def test_a_gain_20_percent_high_that_the_stiffness_absorbs_is_checked_and_not_sa
     """The record cannot reject it: the stiffness and the delay take it up within the noise
     (a thirteenth outside check's five systems; the run says it checked, not that it is right)."""
     out = run(spec())  # (the gain 1.5 given right: the reference fit)
-    high = run(parse_problem(tomllib.loads(text().replace("gain = 1.5", "gain = 1.8")), ROOT))
+    high = run(parse_problem(tomllib.loads(text().replace("tau_max = 0.5\ngain = 1.5", "tau_max = 0.5\ngain = 1.8")),
+                             ROOT))  # (the model's gain; the truth's stays 1.5)
     gain = next(c for c in high.given if c.kind == "gain")
     assert not gain.disagrees and not gain.reason and gain.p > 0.01
     assert high.polish.rms_after < 1.02 * out.polish.rms_after  # (the same simulation error, within 2 %)
     assert "the feedback gain = 1.8 p = " in high.summary()
+    assert high.polish.parameters["x"] != pytest.approx(out.polish.parameters["x"], rel=0.01)  # (the stiffness took it)
+
+
+def test_a_delay_range_that_misses_the_delay_does_not_fault_right_given_values():
+    """With ``tau_max`` 0.1 s for a delay of 0.15, freeing the right gain soaked up the
+    misfit and it was said to disagree (a re-review); freed, the delay stays at the top:
+    the range is the likelier cause, and the delay's warning says to raise it."""
+    short = text("inertia = false\nmass = 1.0").replace("tau_max = 0.5", "tau_max = 0.1")
+    short = run(parse_problem(tomllib.loads(short), ROOT))
+    assert short.polish.parameters["tau"] == pytest.approx(0.1, abs=1e-3)
+    assert not any(c.disagrees for c in short.given) and not any("disagrees with" in w for w in short.warnings)
+    bound = next(w for w in short.warnings if "tau_max" in w)
+    assert "raise [model.delay] tau_max" in bound and "check it first" not in bound
 
 
 def test_a_taylor_delay_with_a_given_mass_is_polished_and_its_values_listed_unchecked():

@@ -44,6 +44,7 @@ from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import band_period, noise_level, spectral_peak
 from cvxid.model.equation import LINEAR, LISTED
+from cvxid.model.delay import END_SAMPLES, END_SHARE
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
 from cvxid.model.system import SystemSpec
@@ -158,21 +159,10 @@ def _warn_confounded_gain(out: RunResult) -> None:
                 + note, CvxidWarning, stacklevel=2)
 
 
-TOP = 1e-3
-"""A delay within this share of its search range's width from an end of its range is at
-that end (at the bottom, :data:`EDGE_SAMPLES` samples if that is more)."""
-EDGE_SAMPLES = 1.5
-"""The samples from the bottom of its range within which a delay is at the bottom, where
-that is more than :data:`TOP` of the range (a seventh outside check's 0.0010002 s at
-1 kHz, a range of 0.4 s, its damping standing in for the delay, was not said to be at 0:
-the equation-error profile's grid is about a sample; a delay of two samples, a digital
-loop's, is not at 0).  At the top :data:`TOP` alone: a flat profile's estimate a sample
-under the top is undetermined, its interval spanning the range, not beyond it."""
-
-
 def _at_top(tau: float | None, delay) -> bool:
-    """Whether the delay ``tau`` is at the top of ``delay``'s search range (:data:`TOP`)."""
-    return tau is not None and tau >= delay.tau_max - TOP * (delay.tau_max - delay.tau_min)
+    """Whether the delay ``tau`` is at the top of ``delay``'s search range
+    (:meth:`~cvxid.model.delay.DelayedFeedback.end`)."""
+    return tau is not None and delay.end(tau) == "top"
 
 
 SHORT_OF_NOISE = 1.5
@@ -239,6 +229,7 @@ def _check_given(out: RunResult) -> None:
 
 
 def _disagreeing(out: RunResult) -> list:
+    """The given values the record disagrees with, the best fit when freed first."""
     return sorted((c for c in out.given if c.disagrees), key=lambda c: c.rms)
 
 
@@ -258,8 +249,8 @@ def _warn_given(out: RunResult) -> None:
          "the record disagrees with a value the spec gives, which the fit takes as exact: freed, it moves by more "
          "than 1 % and the model, polished again, fits the training record better beyond chance — ")
         + "; ".join(c.sentence() for c in wrong) + (
-            ". Where their errors are alike the record cannot tell which is wrong: the one whose estimate is "
-            "plausible is the suspect" if several else "")
+            ". They are listed best fit first; where their errors are alike the record cannot tell which is wrong, "
+            "and the one whose estimate is plausible is the suspect" if several else "")
         + ". The parameters and intervals reported hold only if every given value is right (a missing effect can "
           "also make a right value look wrong)", CvxidWarning, stacklevel=2)
 
@@ -274,12 +265,16 @@ def _given_note(out: RunResult, besides: tuple[str, ...] = (), passing: bool = T
     if wrong:
         return (f"; the record also disagrees with {', '.join(c.stated for c in wrong)} (the warning above), and a "
                 "wrong given value moves the delay: check " + ("it" if len(wrong) == 1 else "them") + " first")
-    given = [c.stated for c in out.given if c.kind not in besides and not c.reason] if passing else []
-    if not given:
+    checked = [c for c in out.given if c.kind not in besides and not c.reason] if passing else []
+    if not checked:
         return ""
-    return (f"; the spec also gives {', '.join(given)}: the record does not reject "
-            + ("it" if len(given) == 1 else "them") + ", yet a wrong given value moves the delay too (estimate "
-            + ("it" if len(given) == 1 else "them") + " once to compare)")
+    held = [c.stated for c in checked if c.held]
+    if held:
+        return (f"; the spec also gives {', '.join(held)}, and freed, the delay stays at this end: the range, not the "
+                "given value, is the likelier cause")
+    given = [c.stated for c in checked]
+    return (f"; the spec also gives {', '.join(given)}, which the check of given values does not fault, yet a "
+            "wrong given value moves the delay too")
 
 
 def _warn_delay_at_bound(out: RunResult) -> None:
@@ -301,8 +296,8 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         #                                    bound's warnings below would say less, about the alias)
         warnings.warn(out.polish.longer_delay.advice() + _added_delay_note(out), CvxidWarning, stacklevel=2)
         return
-    tolerance = TOP * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
-    bottom = max(tolerance, EDGE_SAMPLES * out.train.dt)
+    tolerance = END_SHARE * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
+    bottom = max(tolerance, END_SAMPLES * out.train.dt)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
@@ -786,8 +781,9 @@ def _warn_short_test(out: RunResult) -> None:
     period = spectral_peak(out.train.output(coordinate), out.train.dt).period
     if length < period:
         warnings.warn(
-            f"the test record spans {length:.3g} s, less than one period ({period:.3g} s) of the response's dominant "
-            "oscillation in the training record: its free run tests a fraction of a swing, so its fit, and the "
+            f"the test record spans {length:.3g} s, less than one period ({period:.3g} s) of the training "
+            "response's spectral peak (its slowest strong motion, an oscillation or a slow drift of an overdamped "
+            "plant): its free run tests a fraction of that motion, so its fit, and the "
             "diagnosis's choices made on it, rest on little; give a longer test record ([data.test] fraction or "
             "samples)", CvxidWarning, stacklevel=2)
 

@@ -42,10 +42,12 @@ wrong: where several disagree, the one whose estimate is plausible is the suspec
 given value the record cannot tell from others (a known gain 20 % high that the stiffness
 and the delay absorb at the noise level) passes: the intervals then hold for the given
 value only.  A Taylor-expanded delay's model is not checked (its columns carry the delay's
-shares: its values are listed as not checked), nor a known input delay.  A delay pressed
-against a bound of its range is not free in :math:`J`
-(:func:`~cvxid.identify.output_error.linearisation`), and the score test cannot see a value
-that would pull it inside: there every given value is refitted (:func:`check_given`).
+shares: its values are listed as not checked), nor a known input delay.  A delay at an end
+of its range (pressed against it, not free in :math:`J`:
+:func:`~cvxid.identify.output_error.linearisation`) hides a value that would pull it inside
+from the score test: there every given value is refitted (:func:`check_given`), and where
+the freed fit holds the delay at the same end, one the user set (the top, or a bottom above
+0), the range is the likelier cause and the value is not faulted.
 """
 
 from __future__ import annotations
@@ -103,6 +105,7 @@ class GivenCheck:
     rms_given: float | None = None
     fix: str = ""  # how to estimate it instead
     reason: str = ""  # why it was not checked ("": checked)
+    held: str | None = None  # "top" or "bottom": freed, the delay stays at that end of its range, as given
 
     @property
     def stated(self) -> str:
@@ -125,7 +128,8 @@ class GivenCheck:
                 "checked": not self.reason, "reason": self.reason or None, "statistic": number(self.statistic),
                 "p": number(self.p), "change": number(self.change), "disagrees": self.disagrees,
                 "estimate": number(self.estimate), "interval": None if self.interval is None else list(self.interval),
-                "tau": number(self.tau), "rms": number(self.rms), "rms_given": number(self.rms_given)}
+                "refitted": self.rms is not None, "tau": number(self.tau), "rms": number(self.rms),
+                "rms_given": number(self.rms_given), "delay_held_at": self.held}
 
 
 @dataclass(frozen=True)
@@ -166,7 +170,7 @@ def _given_values(system: IdentifiedSystem) -> Iterator[_Given]:
                                         f" in {label}'s equation" if several else " in [model]")),
                          spec.mass, _freed(system, label, replace(spec, inertia=True), spec.inertia_term.name))
         delay = spec.delay
-        if delay is not None and delay.gain is not None and delay.gain != 0:
+        if delay is not None and delay.gain is not None:  # (a gain of 0: listed, nothing to move)
             yield _Given(GivenCheck(name(label, "gain", "gain"), "gain",
                                     f"{label}'s feedback gain" if several else "the feedback gain", float(delay.gain),
                                     fix="to estimate it: leave out " + (
@@ -197,7 +201,8 @@ def check_given(best: PolishResult, train: Experiment, schedule: dict | None = N
     a 4000-sample record: 15 effective rows, the statistic 12.5 for an 81 % fall).  Where
     the fit holds the delay at a bound of its range, the delay is not free in :math:`J` and
     a wrong value that holds it there scores low (two masses 10 % off on random held-out
-    systems: p = 0.02, the delay at 0): every value is then refitted, the
+    systems: p = 0.02, the delay at 0): where the delay sits at an end of its range
+    (:meth:`~cvxid.model.delay.DelayedFeedback.end`) every value is refitted, the
     likelihood-ratio bound deciding alone."""
     given = list(_given_values(best.system))
     if not given or not np.isfinite(best.rms_after):
@@ -209,15 +214,14 @@ def check_given(best: PolishResult, train: Experiment, schedule: dict | None = N
         names, r, J = linearisation(best.system, [train], best.initial)
     except CvxidError:  # (a diverged simulation)
         return tuple(replace(item.check, reason="the fit does not simulate") for item in given)
-    pressed = "tau" in best.parameters and "tau" not in names
-    level = LEVEL / len(given)
-    checks = []
-    for item in given:
-        check = _scored(item, best, train, r, J)
-        if not check.reason and (pressed or (check.p < level and abs(check.change) >= CHANGE / 2)):
-            check = _refitted(check, item, best, train, schedule, level)
-        checks.append(check)
-    return tuple(checks)
+    delay = next(iter(best.system.specs.values())).delay
+    at_end = "tau" in best.parameters and (  # (pressed against a bound, or within a sample or so of it)
+        "tau" not in names or delay.end(best.parameters["tau"], train.dt) is not None)
+    scored = [_scored(item, best, train, r, J) for item in given]
+    level = LEVEL / max(sum(not check.reason for check in scored), 1)
+    return tuple(_refitted(check, item, best, train, schedule, level)
+                 if not check.reason and (at_end or (check.p < level and abs(check.change) >= CHANGE / 2)) else check
+                 for check, item in zip(scored, given))
 
 
 def _scored(item: _Given, best: PolishResult, train: Experiment, r: np.ndarray, J: np.ndarray) -> GivenCheck:
@@ -241,8 +245,12 @@ def _scored(item: _Given, best: PolishResult, train: Experiment, r: np.ndarray, 
 def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experiment, schedule: dict | None,
               level: float) -> GivenCheck:
     """``check`` with the polish of ``item.freed``: the value it estimates, the delay, and
-    whether it disagrees (its training simulation error beyond the likelihood-ratio bound
-    on the freed fit's effective rows, and the value moved by more than :data:`CHANGE`)."""
+    whether it disagrees: its training simulation error beyond the likelihood-ratio bound
+    on the freed fit's effective rows, the value moved by more than :data:`CHANGE`, and
+    the delay not held at the same end of its range (:func:`_held`).  (Asking the value to
+    leave the freed fit's 95 % interval too, a re-review's idea against the right gain named
+    beside a wrong mass, named no fewer gains on the report seeds and lost a wrong mass whose
+    interval, widened along the gain's valley, held the given value.)"""
     try:
         with warnings.catch_warnings():  # (the run's own warnings are about the model it reports)
             warnings.simplefilter("ignore")
@@ -258,12 +266,30 @@ def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experi
         estimate, interval = (left / right if right else np.nan), None
     bound = 1 + max(free.input_noise_inflation, 1.0) * chi2.ppf(1 - level, 1) / max(free.effective_rows, 1.0)
     moved = abs(estimate - check.given) > CHANGE * abs(check.given)
-    return replace(check, disagrees=bool(free.rms_after**2 * bound < best.rms_after**2 and moved),
+    held = _held(best, free, train)
+    return replace(check, disagrees=bool(free.rms_after**2 * bound < best.rms_after**2 and moved and held is None),
                    estimate=float(estimate), interval=None if interval is None else tuple(map(float, interval)),
-                   tau=free.parameters.get("tau"), rms=float(free.rms_after), rms_given=float(best.rms_after))
+                   tau=free.parameters.get("tau"), rms=float(free.rms_after), rms_given=float(best.rms_after),
+                   held=held)
 
 
-def checked_line(checks) -> str:
+def _held(best: PolishResult, free: PolishResult, train: Experiment) -> str | None:
+    """The end of the delay's search range where both ``best`` and the freed fit ``free``
+    hold the delay, else None.  A wrong given value that holds the delay at an end lets it
+    back inside when freed; where the freed fit stays at the same end, the range (a true
+    delay outside it) is the likelier cause, and freeing a right value merely soaks up its
+    misfit (a re-review: with ``tau_max`` 0.1 s for a delay of 0.15 the right gain was said
+    to disagree, its interval holding it)."""
+    delay = next(iter(best.system.specs.values())).delay
+    if delay is None or "tau" not in best.parameters or "tau" not in free.parameters:
+        return None
+    end = delay.end(best.parameters["tau"], train.dt)
+    if end == "bottom" and delay.tau_min == 0:  # (no delay lies below 0: the range cannot be the cause there)
+        return None
+    return end if end is not None and delay.end(free.parameters["tau"], train.dt) == end else None
+
+
+def checked_line(checks: tuple[GivenCheck, ...]) -> str:
     """One line for the run's printout: each given value, its score test's p-value and the
     first-order change it asks for, those the record disagrees with marked, those not
     checked with why ("" without given values)."""
@@ -273,10 +299,15 @@ def checked_line(checks) -> str:
     for c in checks:
         if c.reason:
             said.append(f"{c.stated} not checked ({c.reason})")
-        else:
-            said.append(f"{c.stated} p {_p(c.p)}, change {100 * c.change:+.3g} %"
-                        + (" DISAGREES (the warning below)" if c.disagrees else ""))
-    return "given values checked against the record (score test): " + "; ".join(said)
+            continue
+        text = f"{c.stated} p {_p(c.p)}" + (f", asks for {100 * c.change:+.3g} %" if c.p < LEVEL else "")
+        if c.rms is not None:
+            text += ("; refitted: DISAGREES (the warning below)" if c.disagrees else
+                     f"; refitted: the delay stays at the {c.held} of its range (the range, not the value, is the "
+                     "likelier cause)" if c.held else f"; refitted: {c.estimate:.4g}, not a disagreement")
+        said.append(text)
+    return "given values (the score test of freeing each at the final fit, a refit where it flags one): " + \
+        "; ".join(said)
 
 
 def _p(p: float) -> str:

@@ -40,7 +40,7 @@ def score_gains(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray)
 def score_refit(residual: np.ndarray, jacobian: np.ndarray, column: np.ndarray) -> tuple[float, float, np.ndarray]:
     """:func:`score_gains` of one ``column`` ``(n,)``, with the residual its Gauss–Newton
     step leaves to first order, :math:`r + j_\\perp \\delta_c` (whose square sum is
-    :math:`r^T r - \\Delta_c` when :math:`r` is orthogonal to the fit's columns)."""
+    :math:`r^T r - \\Delta_c`)."""
     perp = column - jacobian @ np.linalg.lstsq(jacobian, column, rcond=None)[0]
     norm = float(perp @ perp)
     if norm <= 1e-24 * max(float(column @ column), 1e-300):

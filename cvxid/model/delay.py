@@ -26,6 +26,16 @@ from cvxid.errors import CvxidError, EquationErrorDelayWarning
 from cvxid.model.terms import Derivative
 
 METHODS = ("taylor", "exact")
+END_SHARE = 1e-3
+"""A delay within this share of its search range's width from an end of its range is at
+that end (at the bottom, :data:`END_SAMPLES` samples if that is more)."""
+END_SAMPLES = 1.5
+"""The samples from the bottom of its range within which a delay is at the bottom, where
+that is more than :data:`END_SHARE` of the range (a seventh outside check's 0.0010002 s at
+1 kHz, a range of 0.4 s, its damping standing in for the delay, was not said to be at 0:
+the equation-error profile's grid is about a sample; a delay of two samples, a digital
+loop's, is not at 0).  At the top :data:`END_SHARE` alone: a flat profile's estimate a sample
+under the top is undetermined, its interval spanning the range, not beyond it."""
 HISTORIES = ("measured", "zero", "initial")
 """What the feedback read before a simulation's start: the measured signal (see
 :mod:`cvxid.regression.history`), nothing, or the initial position held."""
@@ -89,6 +99,15 @@ class DelayedFeedback:
     @property
     def exact(self) -> bool:
         return self.method == "exact"
+
+    def end(self, tau: float, dt: float = 0.0) -> str | None:
+        """``"top"`` or ``"bottom"`` where the delay ``tau`` sits at that end of the search
+        range (:data:`END_SHARE`; at the bottom :data:`END_SAMPLES` samples of ``dt`` if that
+        is more), else None."""
+        share = END_SHARE * (self.tau_max - self.tau_min)
+        if tau >= self.tau_max - share:
+            return "top"
+        return "bottom" if tau <= self.tau_min + max(share, END_SAMPLES * dt) else None
 
     @property
     def signal(self) -> str:
