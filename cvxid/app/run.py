@@ -31,8 +31,8 @@ from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine, zeroed
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
-from cvxid.identify.given import check_given
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
+from cvxid.identify.given import check_given
 from cvxid.identify.loss import huber_refit
 from cvxid.identify.orders import OrderSearch, search_orders
 from cvxid.identify.output_error import cancelling_gain, longer_delay, natural_inertia, polish, typical_spread
@@ -43,8 +43,8 @@ from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import band_period, noise_level, spectral_peak
-from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.delay import END_SAMPLES, END_SHARE
+from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
 from cvxid.model.system import SystemSpec
