@@ -43,7 +43,6 @@ from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
 from cvxid.metrics import band_period, noise_level, spectral_peak
-from cvxid.model.delay import END_SAMPLES, END_SHARE
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
@@ -296,15 +295,14 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         #                                    bound's warnings below would say less, about the alias)
         warnings.warn(out.polish.longer_delay.advice() + _added_delay_note(out), CvxidWarning, stacklevel=2)
         return
-    tolerance = END_SHARE * (delay.tau_max - delay.tau_min)  # (the polish's bounds hold the estimate on them)
-    bottom = max(tolerance, END_SAMPLES * out.train.dt)
+    end = delay.end(estimate, out.train.dt)  # (the polish's bounds hold the estimate on them)
     gain = out.polish.interval("gain") if out.polish is not None and "gain" in out.polish.parameters else None
     interval = out.tau.get("interval")
     said = spec.confounded_signal is not None and (  # (_warn_confounded_gain's)
         (interval is not None and interval[0] <= 0) or (out.polish is not None and bool(_trading(out.polish))))
     text, note = None, _given_note(out)  # (the delay at a bound: a given value may hold it there)
-    top = _at_top(estimate, delay) or (  # (or its interval reaches the top, and is not the whole range)
-        interval is not None and interval[1] >= delay.tau_max - tolerance and not _spans_range(interval, delay))
+    top = end == "top" or (  # (or its interval reaches the top, and is not the whole range)
+        interval is not None and delay.end(interval[1]) == "top" and not _spans_range(interval, delay))
     if top and said and (gain is None or gain[0] <= 0 <= gain[1]):
         # (the gain's warning says why the delay may lie anywhere in its range; a gain that is determined apart
         # from 0 feeds back, and its delay at the top may be longer: an outside check's 1.6 s, 0.46.  An eleventh
@@ -312,7 +310,7 @@ def _warn_delay_at_bound(out: RunResult) -> None:
         # x^3 added, said only by the gain's warning)
         added = _added_effects(out)
         text = None if interval is None or interval[0] <= 0 else (  # (reaching 0: the gain's warning says it all)
-            (f"the delay tau = {estimate:.4g} s sits at" if _at_top(estimate, delay) else
+            (f"the delay tau = {estimate:.4g} s sits at" if end == "top" else
              f"the delay's 95 % interval ({interval[0]:.4g} … {interval[1]:.4g} s) reaches") +
             f" the top of its search range (tau_max = {delay.tau_max:g} s): with the feedback gain not "
             "determined (above) that is the range's bound, not a measured delay, and the interval is no interval for "
@@ -329,11 +327,11 @@ def _warn_delay_at_bound(out: RunResult) -> None:
                                                   if interval else "") +
             f" reaches the top of its search range (tau_max = {delay.tau_max:g} s): the true delay may be longer; "
             "raise [model.delay] tau_max" + _stand_ins(out))
-    elif estimate <= delay.tau_min + bottom and delay.tau_min > 0:
+    elif end == "bottom" and delay.tau_min > 0:
         text = (
             f"the delay tau = {estimate:.4g} s is at the bottom of its search range (tau_min = {delay.tau_min:g} s): "
             "the true delay may be shorter; lower [model.delay] tau_min")
-    elif estimate <= bottom and spec.confounded_signal is None:  # (else _warn_confounded_gain says it)
+    elif end == "bottom" and spec.confounded_signal is None:  # (at 0; else _warn_confounded_gain says it)
         note = _given_note(out, ("gain",))  # (this warning names a given gain itself)
         text = (
             f"the delay tau = {estimate:.4g} s is at 0, the bottom of its search range: the data show no delay, or "

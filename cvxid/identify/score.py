@@ -29,7 +29,16 @@ def score_gains(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray)
     ``(n,)``, and its Gauss–Newton step :math:`\\delta_c` (see the module docstring).  A
     column the fit already spans gains 0 at step 0."""
     columns = np.asarray(columns, float).reshape(residual.size, -1)
-    perp = columns - jacobian @ np.linalg.lstsq(jacobian, columns, rcond=None)[0]
+    return _gains(residual, columns, _perpendicular(jacobian, columns))
+
+
+def _perpendicular(jacobian: np.ndarray, columns: np.ndarray) -> np.ndarray:
+    """The part of each column that the fit's columns do not span, :math:`(I - J J^+) J_c`."""
+    return columns - jacobian @ np.linalg.lstsq(jacobian, columns, rcond=None)[0]
+
+
+def _gains(residual: np.ndarray, columns: np.ndarray, perp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`score_gains` from the columns' parts ``perp`` (:func:`_perpendicular`)."""
     along = perp.T @ residual
     norms = np.einsum("ij,ij->j", perp, perp)
     spanned = norms <= 1e-24 * np.maximum(np.einsum("ij,ij->j", columns, columns), 1e-300)
@@ -41,12 +50,10 @@ def score_refit(residual: np.ndarray, jacobian: np.ndarray, column: np.ndarray) 
     """:func:`score_gains` of one ``column`` ``(n,)``, with the residual its Gauss–Newton
     step leaves to first order, :math:`r + j_\\perp \\delta_c` (whose square sum is
     :math:`r^T r - \\Delta_c`)."""
-    perp = column - jacobian @ np.linalg.lstsq(jacobian, column, rcond=None)[0]
-    norm = float(perp @ perp)
-    if norm <= 1e-24 * max(float(column @ column), 1e-300):
-        return 0.0, 0.0, residual
-    step = -float(perp @ residual) / norm
-    return step**2 * norm, step, residual + step * perp
+    column = np.asarray(column, float).reshape(residual.size, 1)
+    perp = _perpendicular(jacobian, column)
+    (gain,), (step,) = _gains(residual, column, perp)
+    return float(gain), float(step), residual + step * perp[:, 0]
 
 
 def block_score_gain(residual: np.ndarray, jacobian: np.ndarray, columns: np.ndarray) -> tuple[float, np.ndarray]:
@@ -64,6 +71,6 @@ def block_score_gain(residual: np.ndarray, jacobian: np.ndarray, columns: np.nda
     if columns.shape[1] == 1:
         (gain,), step = score_gains(residual, jacobian, columns)
         return float(gain), step
-    perp = columns - jacobian @ np.linalg.lstsq(jacobian, columns, rcond=None)[0]
+    perp = _perpendicular(jacobian, columns)
     step = -np.linalg.lstsq(perp, residual, rcond=1e-10)[0]
     return float(-(perp @ step) @ residual), step
