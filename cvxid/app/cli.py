@@ -225,16 +225,16 @@ def _heldout(args) -> int:
     from cvxid.app.report import plain
     from cvxid.identify.path import SELECTION_RULES
     from cvxid.spec.problem import SELECTORS
-    from cvxid.tools.heldout import EFFECTS, SELECTION_EFFECTS, by_duration, confusion, heldout, summary
+    from cvxid.tools.heldout import EFFECTS, OUTSIDE, SELECTION_EFFECTS, by_duration, confusion, heldout, summary
 
     if args.spec:
         raise CvxidError("--heldout draws its own systems: give no SPEC")
     seeds = _seeds(args.seeds or "1000:1010")
     effects = tuple(args.effects.split(",")) if args.effects else \
         SELECTION_EFFECTS if args.mode.startswith("selection") else EFFECTS
-    unknown = [e for e in effects if e not in EFFECTS]
+    unknown = [e for e in effects if e not in EFFECTS + OUTSIDE]
     if unknown:
-        raise CvxidError(f"--effects: unknown hidden effect '{unknown[0]}'; one of: {', '.join(EFFECTS)}")
+        raise CvxidError(f"--effects: unknown hidden effect '{unknown[0]}'; one of: {', '.join(EFFECTS + OUTSIDE)}")
     noises = tuple(_numbers(args.noises, "--noises", "noise levels like 0.01,0.001", 0.0)) if args.noises else (None,)
     lengths = _numbers(args.duration, "--duration", "record seconds like 8 or 20,200", 1.0) if args.duration \
         else [None]

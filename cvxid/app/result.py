@@ -62,6 +62,7 @@ class RunResult:
     lam: float | None = None  # the selected lambda (None: least squares, nothing selected)
     window: Windows | None = None  # the algebraic operation's windows (None: the whole record)
     comparisons: dict[str, Comparison] | None = None  # the test record's free run and k-step fit, by coordinate
+    train_comparisons: dict[str, Comparison] | None = None  # the training record's, from the polish's start
     input_delay: dict | None = None  # the input's delay estimated: estimate, interval, method
     simulation_refinement: object | None = None  # SimulationRefinement: the diagnosis by simulation error
     stability: Stability | None = None  # stability selection's inclusion probabilities
@@ -90,10 +91,20 @@ class RunResult:
         for several, a table by coordinate (``fit_percent``, ``rms``, ``record_fit_percent``,
         ``initial_position``, ``initial_velocity``, ``noise_ceiling_percent``,
         ``k_step_fit_percent``; a diverged simulation's fit is -inf, its RMS inf)."""
-        if self.comparisons is None:
+        return self._fit_view(self.comparisons)
+
+    @property
+    def train_fit(self) -> Comparison | pd.DataFrame | None:
+        """The polished model against the training record it was fitted on, from the
+        polish's own initial state, as :attr:`test_fit` shows the test record's (None
+        without the output-error polish)."""
+        return self._fit_view(self.train_comparisons)
+
+    def _fit_view(self, comparisons: dict[str, Comparison] | None) -> Comparison | pd.DataFrame | None:
+        if comparisons is None:
             return None
         if not self.coupled:
-            return next(iter(self.comparisons.values()))
+            return next(iter(comparisons.values()))
         rows = {c: {"fit_percent": -np.inf if m.fit_percent is None else m.fit_percent,
                     "rms": np.inf if m.rms is None else m.rms,
                     "record_fit_percent": -np.inf if m.record_fit_percent is None else m.record_fit_percent,
@@ -101,7 +112,7 @@ class RunResult:
                     "initial_velocity": np.nan if m.initial_state is None else m.initial_state[1],
                     "noise_ceiling_percent": m.ceiling_percent,
                     "k_step_fit_percent": np.nan if m.k_step_fit_percent is None else m.k_step_fit_percent}
-                for c, m in self.comparisons.items()}
+                for c, m in comparisons.items()}
         return pd.DataFrame.from_dict(rows, orient="index").rename_axis("coordinate")
 
     # ------------------------------------------------------------------ tables
@@ -220,21 +231,19 @@ class RunResult:
         return common | (self._coupled_dict() if self.coupled else self._single_dict())
 
     def _test_fits(self) -> dict:
-        """The test record's comparison for ``result.json``: each figure by coordinate,
-        squeezed to its value for one equation (as its columns are printed bare)."""
-        keys = {"test_fit_percent": "fit_percent", "test_rms": "rms",
+        """The test record's comparison for ``result.json``, and the training record's fit
+        and noise ceiling: each figure by coordinate, squeezed to its value for one equation
+        (as its columns are printed bare)."""
+        test = {"test_fit_percent": "fit_percent", "test_rms": "rms",
                 "test_fit_percent_record_start": "record_fit_percent",
                 "test_fit_percent_noise_ceiling": "ceiling_percent", "test_k_step_fit_percent": "k_step_fit_percent"}
+        train = {"train_fit_percent": "fit_percent", "train_fit_percent_noise_ceiling": "ceiling_percent"}
         cmps = self.comparisons
-        if cmps is None:
-            return dict.fromkeys([*keys, "test_initial_state"])
-        squeeze = (lambda values: next(iter(values.values()))) if len(cmps) == 1 else (lambda values: values)
-        out = {key: squeeze({c: getattr(m, attribute) for c, m in cmps.items()}) for key, attribute in keys.items()}
-        first = next(iter(cmps.values()))
-        out["test_initial_state"] = None if first.initial_state is None else {
-            "method": first.initial, "position": {c: m.initial_state[0] for c, m in cmps.items()},
-            "velocity": {c: m.initial_state[1] for c, m in cmps.items()}}
-        return out
+        first = None if cmps is None else next(iter(cmps.values()))
+        return _by_coordinate(cmps, test) | _by_coordinate(self.train_comparisons, train) | {
+            "test_initial_state": None if first is None or first.initial_state is None else {
+                "method": first.initial, "position": {c: m.initial_state[0] for c, m in cmps.items()},
+                "velocity": {c: m.initial_state[1] for c, m in cmps.items()}}}
 
     def _single_dict(self) -> dict:
         model, fit = self.model, self.spec.fit
@@ -305,6 +314,7 @@ class RunResult:
             *([f"  test {self.test_fit.title()}; {self.test_fit.k_step}-step fit "
                + ("-" if self.test_fit.k_step_fit_percent is None else f"{self.test_fit.k_step_fit_percent:.1f} %")]
               if self.test_fit is not None else []),
+            *([f"  training record (fitted) {self.train_fit.title()}"] if self.train_fit is not None else []),
             *([f"  tau = {self.tau['estimate']:.5g} ({self.tau['method']}"
                + (f", 95 % interval {self.tau['interval'][0]:.5g} … {self.tau['interval'][1]:.5g})"
                   if self.tau["interval"] and all(v is not None and np.isfinite(v) for v in self.tau["interval"])
@@ -377,3 +387,13 @@ class RunResult:
 
     def __repr__(self) -> str:
         return self.summary()
+
+
+def _by_coordinate(comparisons: dict[str, Comparison] | None, keys: dict[str, str]) -> dict:
+    """``result.json``'s figures (key → the :class:`~cvxid.diagnosis.compare.Comparison`
+    attribute) by coordinate, a single coordinate's squeezed to its value; None without
+    comparisons."""
+    if comparisons is None:
+        return dict.fromkeys(keys)
+    squeeze = (lambda values: next(iter(values.values()))) if len(comparisons) == 1 else (lambda values: values)
+    return {key: squeeze({c: getattr(m, attribute) for c, m in comparisons.items()}) for key, attribute in keys.items()}

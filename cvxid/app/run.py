@@ -42,7 +42,7 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import band_period, noise_level, spectral_peak
+from cvxid.metrics import band_period, spectral_peak
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
@@ -173,13 +173,20 @@ most 1.13 times the training output's noise level (docs/benchmarks.md)."""
 
 def _short_of_noise(out: RunResult, spec) -> bool:
     """Whether the output-error polish's simulation of the training record misses it by
-    :data:`SHORT_OF_NOISE` times the noise level of ``spec``'s coordinate or more: the sign
-    that a delay past its range may be what is missing, where a loop without feedback (its
-    delay run to the top of the range, its gain's interval holding 0) fits to the noise."""
-    if out.polish is None or len(out.system.models) != 1:
-        return False
-    level = noise_level(out.train.output(spec.coordinate))
-    return bool(level > 0 and out.polish.rms_after >= SHORT_OF_NOISE * level)
+    :data:`SHORT_OF_NOISE` times what the noise allows for ``spec``'s coordinate or more
+    (:func:`_training_gap`): the sign that a delay past its range may be what is missing,
+    where a loop without feedback (its delay run to the top of the range, its gain's
+    interval holding 0) fits to the noise."""
+    gap = _training_gap(out, spec.coordinate)
+    return gap is not None and gap >= SHORT_OF_NOISE
+
+
+def _training_gap(out: RunResult, coordinate: str) -> float | None:
+    """How far the final, polished model's free run misses the training record at
+    ``coordinate``, in multiples of what its noise allows (:func:`_noise_multiple`); None
+    without it (no polish, a diverged simulation)."""
+    train = (out.train_comparisons or {}).get(coordinate)
+    return None if train is None else _noise_multiple(train, train.fit_percent)
 
 
 def _longer(spec) -> str:
@@ -654,33 +661,66 @@ r"""A final model is incomplete when its free run misses the test record by at l
 many times what the noise allows (:math:`(100 - \text{fit}) / (100 - \text{ceiling})`, the
 ratio of the free run's error to the noise's)."""
 
+TRAINING_INCOMPLETE = 1.1
+r"""A polished model is incomplete when its free run misses the training record it was
+fitted on by at least this many times what the noise allows (the ratio of
+:data:`INCOMPLETE`): the fitted record is long and the fit's own initial state is exact for
+it, so the ratio of a complete model stays near 1.  On the held-out benchmark's tuning
+seeds (0–9, noise 0.01 and 0.001, 220 runs: every catalogue effect found by the diagnosis
+from 8 s, and the true terms given on 5–200 s) complete models reached 1.032 at most; the
+effects outside the catalogue (``examples/incomplete_models.py``) left 1.05–13 where the
+catalogue's neighbours could not stand in for them (:func:`_warn_incomplete`)."""
+
 
 def _warn_incomplete(out: RunResult) -> None:
     r"""A final model whose free run misses the test record by :data:`INCOMPLETE` times
-    what the noise allows or more (and does not drift, which :func:`_warn_drift` says),
-    said aloud: part of the dynamics is not in the model and the diagnosis found no
-    candidate that holds it.  An outside check's dead-zone spring (2.3 times), Stribeck and
-    Dahl frictions (2.5 and 3.5 times) and a second, unmodelled input (8.9 times) ended
-    with no word between the drift's 10 times and nothing."""
-    for label, c in (out.comparisons or {}).items():
-        free = _noise_multiple(c, c.fit_percent)
-        if free is not None and free >= INCOMPLETE and not _drifts(c):
-            where = "" if len(out.comparisons) == 1 else f" of '{label}'"
-            tried = (_refused(out) or "no candidate the diagnosis tried holds it" if out.spec.diagnose is not None
-                     else "[diagnose] looks for it among the catalogue's effects")
-            warnings.warn(
-                f"the final model's free run{where} misses the test record by {free:.3g} times what its noise "
-                f"allows (fit {_percent(c.fit_percent)} % where the noise allows {_percent(c.ceiling_percent)} %): "
-                f"part of the dynamics is not in the model, and {tried}. Effects outside the "
-                "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
-                "an actuator's lag or saturation, a second input), as do a delay outside its search range and a "
-                "noise that is not white (the ceiling assumes white noise)" + _jumping(out.test) + _coarse(c, out.test)
-                + "; test_fit.png "
-                "shows where it fails, and cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") "
-                "against which state" + (". The 95 % intervals assume a complete model: with a part missing, the "
-                                         "parameters move with the stretch of data they are fitted on by more than "
-                                         "the intervals say (fit another stretch to see how much)"
-                                         if out.polish is not None else ""), CvxidWarning, stacklevel=2)
+    what the noise allows or more (and does not drift, which :func:`_warn_drift` says), or
+    the training record by :data:`TRAINING_INCOMPLETE` times, said aloud: part of the
+    dynamics is not in the model and the diagnosis found no candidate that holds it.  An
+    outside check's dead-zone spring (2.3 times), Stribeck and Dahl frictions (2.5 and 3.5
+    times) and a second, unmodelled input (8.9 times) ended with no word between the drift's
+    10 times and nothing; a fourteenth's stiffness :math:`x|x|` fitted as :math:`x^3`
+    missed its test record by 1.5 times and its training record by 2.3 times."""
+    tests, trains = out.comparisons or {}, out.train_comparisons or {}
+    for label in dict.fromkeys([*tests, *trains]):
+        test, train = tests.get(label), trains.get(label)
+        free = None if test is None else _noise_multiple(test, test.fit_percent)
+        fitted = _training_gap(out, label)
+        if test is not None and _drifts(test) or not (
+                free is not None and free >= INCOMPLETE or fitted is not None and fitted >= TRAINING_INCOMPLETE):
+            continue
+        where = "" if len(tests or trains) == 1 else f" of '{label}'"
+        tried = (_refused(out) or "no candidate the diagnosis tried holds it" if out.spec.diagnose is not None
+                 else "[diagnose] looks for it among the catalogue's effects")
+        warnings.warn(
+            f"the final model's free run{where} misses " + _gap_records(test, free, train, fitted)
+            + f": part of the dynamics is not in the model, and {tried}. Effects outside the "
+            "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
+            "an actuator's lag or saturation, a second input), as do a delay outside its search range, a second "
+            "loop with its own delay, a parameter that drifts over the record (fit its halves apart and compare) "
+            "and a noise that is not white (the ceiling assumes white noise)" + _jumping(out.test)
+            + ("" if test is None else _coarse(test, out.test))
+            + ("; test_fit.png shows where it fails, and" if test is not None else ";")
+            + " cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") "
+            "against which state" + (". The 95 % intervals assume a complete model: with a part missing, the "
+                                     "parameters move with the stretch of data they are fitted on by more than "
+                                     "the intervals say (fit another stretch to see how much)"
+                                     if out.polish is not None else ""), CvxidWarning, stacklevel=2)
+
+
+def _gap_records(test, free: float | None, train, fitted: float | None) -> str:
+    """The gap warning's figures: each record's free-run fit against what its noise allows,
+    the record that crossed its threshold first."""
+    said = []
+    if free is not None:
+        said.append(f"the test record by {free:.3g} times what its noise allows (fit {_percent(test.fit_percent)} % "
+                    f"where the noise allows {_percent(test.ceiling_percent)} %)")
+    if fitted is not None:
+        said.append(f"the training record it was fitted on by {fitted:.3g} times what its noise allows (fit "
+                    f"{_percent(train.fit_percent)} % where the noise allows {_percent(train.ceiling_percent)} %)")
+    if free is None or free < INCOMPLETE:
+        said.reverse()
+    return ", and ".join(said)
 
 
 def _refused(out: RunResult) -> str:
@@ -962,12 +1002,28 @@ def _estimate_input_delay(system: SystemSpec, rows: SystemBuilder, tau: float | 
 def _compare(out: RunResult):
     """The final model against the test experiment, once, every coordinate
     (:func:`~cvxid.diagnosis.compare.compare_system`): free-run and k-step-ahead fit; a
-    diverging simulation is a warning of the run."""
+    diverging simulation is a warning of the run.  And a polished model against the
+    training experiment it was fitted on (``out.train_comparisons``), from the initial
+    state the output-error polish estimated where it fitted that record whole (else
+    estimated again): what the gap warning reads beside the test record
+    (:func:`_warn_incomplete`)."""
+    if out.polish is not None:
+        out.train_comparisons = compare_system(out.system, out.train, given=_polished_start(out))
     if out.test is None:
         return
     out.comparisons = compare_system(out.system, out.test)
     for message in dict.fromkeys(c.message for c in out.comparisons.values() if c.message):
         warnings.warn(message, CvxidWarning, stacklevel=2)
+
+
+def _polished_start(out: RunResult) -> dict | None:
+    """The training record's initial state (coordinate → (position, velocity)) the final
+    output-error polish estimated, when it fitted the final system on that record as one
+    stretch (the state is then the free run's own least-squares start); else None."""
+    polish = out.polish
+    if polish.system is not out.system or len(polish.initial) != 1 or out.train.gaps:
+        return None
+    return polish.initial[0]
 
 
 def _diagnose(spec, out: RunResult, rows: SystemBuilder, test_rows: SystemBuilder | None, velocity: str):

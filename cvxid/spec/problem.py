@@ -17,6 +17,7 @@ import numpy as np
 
 from cvxid.data.excitation import excitation
 from cvxid.data.experiment import TIME_UNITS, Experiment, counts_milliseconds, from_frame, load, part_bounds
+from cvxid.data.overlap import copied_share
 from cvxid.data.sensor import FAULT_HANDLING
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.bootstrap import RESAMPLE, BootstrapSettings
@@ -149,6 +150,11 @@ class FitSettings:
     backend: str = "loky"  # where joblib's work runs (cvxid.parallel)
     scheduler: str | None = None  # a dask or ray cluster's address
     prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
+
+
+COPIED = 0.5
+"""The share of a test record's stretches found verbatim in the training record from which
+it is said to repeat it (:meth:`ProblemSpec.warn_overlap`)."""
 
 
 def _same_file(folder: Path, table: Table, other: Table) -> bool:
@@ -296,17 +302,24 @@ class ProblemSpec:
 
     def warn_overlap(self, train: Experiment, test: Experiment) -> None:
         """Warn when ``test``, read from ``train``'s own file, holds samples of ``train``'s
-        part of it: the test figures, and the diagnosis's choices, are then on data the fit
-        saw."""
+        part of it, or, read from another file or given from memory, repeats ``train``
+        sample for sample on :data:`COPIED` of its stretches or more
+        (:func:`~cvxid.data.overlap.copied_share`: an outside check's renamed copy of the
+        training file was reported as a held-out fit): the test figures, and the diagnosis's
+        choices, are then on data the fit saw."""
         tables = self.data.get("train", {}), self.data.get("test", {})
-        if not _same_file(self.folder, *tables):
-            return
-        shared = np.count_nonzero((test.time >= train.time[0]) & (test.time <= train.time[-1]))
-        if shared:
-            warnings.warn(f"spec: [data.test] reads {shared} of its {test.n} samples ({100 * shared / test.n:.3g} %) "
-                          "from the part of the same file that [data.train] reads: the test figures (and the "
-                          "diagnosis's choices) are then on data the fit saw; give another record, or split one into "
-                          "parts that do not overlap (samples or fraction)", CvxidWarning, stacklevel=2)
+        if _same_file(self.folder, *tables):
+            shared = np.count_nonzero((test.time >= train.time[0]) & (test.time <= train.time[-1]))
+            said = (f"reads {shared} of its {test.n} samples ({100 * shared / test.n:.3g} %) from the part of the same "
+                    "file that [data.train] reads") if shared else ""
+        else:
+            share = copied_share(train, test)
+            said = (f"repeats [data.train] sample for sample on {100 * share:.3g} % of the stretches checked (a copy of "
+                    "the training record, or of part of it, under another name)") if share >= COPIED else ""
+        if said:
+            warnings.warn(f"spec: [data.test] {said}: the test figures (and the diagnosis's choices) are then on data "
+                          "the fit saw; give another record, or split one into parts that do not overlap (samples or "
+                          "fraction)", CvxidWarning, stacklevel=2)
 
     def _loaded(self, which: str, table: Table, where: str) -> Experiment:
         inputs = sorted({s.input_column for s in self.equations.values()})

@@ -92,6 +92,18 @@ STRIBECK_SPEED = 0.3
 """The Stribeck velocity of the ``stribeck`` effect, in units of the speed scale
 ``omega x_rms``: its breakaway force (twice the Coulomb level) decays as
 ``exp(-(x'/v_s)^2)``."""
+OUTSIDE = ("abs_stiffness", "smooth_friction")
+"""Hidden effects outside the diagnosis's catalogue, drawn only when asked for by name (the
+default list is :data:`EFFECTS`): a stiffness :math:`k_a\,x|x|` of either sign (a spring
+that hardens or softens with the square of the stretch, as a gas spring or a magnetic
+bearing), and a friction :math:`F \tanh(\dot x / v_t)` that turns over smoothly at
+:data:`SMOOTH_SPEED` (a lubricated contact, the flexible joint's friction), each a force of
+:data:`EFFECT_SHARE`.  The catalogue holds neighbours of both (:math:`x^2`, :math:`x^3`;
+Coulomb and viscous friction), which fit part of them: what the run says of the rest is
+what they measure (``examples/incomplete_models.py``)."""
+SMOOTH_SPEED = 0.3
+"""The ``smooth_friction`` effect's velocity scale :math:`v_t`, in units of the speed scale
+``omega x_rms``."""
 INPUT_DELAY_RANGE = (0.01, 0.05)
 """The input's delay ``tau_u`` (seconds) of the ``input_delay`` effect."""
 EFFECT_SHARE = (0.1, 0.3)
@@ -203,8 +215,8 @@ def draw(seed: int, effect: str | None = None, noise: float | None = None,
     """The seed's system with the hidden ``effect`` (None or ``"none"``: no hidden effect),
     its noise level and record length drawn unless given (see the module docstring)."""
     effect = "none" if effect is None else effect
-    if effect not in EFFECTS:
-        raise CvxidError(f"unknown hidden effect '{effect}'; one of: {', '.join(EFFECTS)}")
+    if effect not in EFFECTS + OUTSIDE:
+        raise CvxidError(f"unknown hidden effect '{effect}'; one of: {', '.join(EFFECTS + OUTSIDE)}")
     for attempt in range(ATTEMPTS):
         oscillator = _attempt(seed, attempt, effect, noise, duration)
         if oscillator is not None:
@@ -228,12 +240,16 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
     coefficients = {"x'": c, "x": k1, "x^3": k3}
     input_tau = float(np.random.default_rng([seed, attempt, 3]).uniform(*INPUT_DELAY_RANGE)) \
         if effect == "input_delay" else 0.0
+    force, speed = share * k1 * target, omega * target  # (the hidden effect's force and speed scales)
     if effect == "stribeck":
-        force, speed = share * k1 * target, omega * target
         coefficients["sign(x')"] = force
         coefficients[_stribeck(STRIBECK_SPEED * speed)] = force
+    elif effect in OUTSIDE:
+        if effect == "abs_stiffness":
+            coefficients[parse_term("x * abs(x)").name] = sign * force / target**2
+        else:
+            coefficients[parse_term(f"tanh(x' / {SMOOTH_SPEED * speed:.6g})").name] = force
     elif effect not in ("none", "input_delay"):
-        force, speed = share * k1 * target, omega * target
         size = {"coulomb": force, "quadratic_damping": force / speed**2, "quadratic_stiffness": sign * force / target**2,
                 "offset": sign * force}[effect]
         coefficients[resolve_term(effect).name] = size
@@ -377,6 +393,10 @@ LEADING = ["seed", "effect", "noise", "duration", "kind", "true tau", "tau", "ta
 TRAILING = ["worst other %", "others covered %", "tau limit %", "tau error / limit", "tau_u error %", "tau_u covers", "seconds", "status", "error"]
 DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
              "free-run error fall", "start to final fall"]
+GAPS = ["train gap", "test gap", "gap said"]
+GAP_WORDS = ("part of the dynamics is not in the model", "the model lacks part of the dynamics")
+"""What the gap and drift warnings say of a final model that misses part of the dynamics
+(:func:`_gaps`)."""
 SELECTION = ["support recovered", "missed", "spurious"]
 
 
@@ -409,6 +429,7 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
         "worst other %": max(abs(v) for v in errors.values()),
         "others covered %": 100.0 * np.mean(covered) if covered else np.nan,
         **late,
+        **_gaps(result),
         "seconds": result["seconds"],
         "first effect": (diagnosis.get("ranking") or [{}])[0].get("effect"),
         "added": ",".join(step["added"] for step in result.get("refinement") or []),
@@ -416,6 +437,18 @@ def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
                                         .get("steps", []) if step["kept"]),
         **_falls(result, oscillator.effect),
     }
+
+
+def _gaps(result: dict) -> dict:
+    r"""How far the final model's free runs miss the training and test records, each in
+    multiples of what the record's noise allows, :math:`(100 - \text{fit}) / (100 -
+    \text{ceiling})` (NaN where a run diverged or the figures are missing), and whether a
+    warning said part of the dynamics is missing (:data:`GAP_WORDS`)."""
+    def gap(record: str) -> float:
+        fit, ceiling = result.get(f"{record}_fit_percent"), result.get(f"{record}_fit_percent_noise_ceiling")
+        return np.nan if fit is None or ceiling is None else (100.0 - fit) / max(100.0 - ceiling, 1e-12)
+    return {"train gap": gap("train"), "test gap": gap("test"),
+            "gap said": any(words in w for w in result["warnings"] for words in GAP_WORDS)}
 
 
 def _delay_limit(out, oscillator: Oscillator) -> dict:
@@ -549,7 +582,7 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
     frame = pd.DataFrame(rows)
     middle = sorted(c for c in frame.columns if c.startswith("err % "))
     extra = {"diagnosis": DIAGNOSIS, "selection": SELECTION, "selection_diagnosis": SELECTION + DIAGNOSIS}.get(mode, [])
-    return frame.reindex(columns=LEADING + middle + TRAILING + extra)
+    return frame.reindex(columns=LEADING + middle + TRAILING + GAPS + extra)
 
 
 def summary(frame: pd.DataFrame, by=("effect", "noise")) -> pd.DataFrame:
@@ -599,8 +632,9 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
     the test record's equation error (MSE) and free-run error (RMS) at its step, the median
     and least factors of the free-run error from the starting model to the final one
     (:func:`_start_to_final`), how often another
-    effect was added (a wrong addition; not one of its :data:`PARTS`), and
-    which effect was ranked first most often in its place.  The control (``none``) can only
+    effect was added (a wrong addition; not one of its :data:`PARTS`), how often a warning
+    said the final model misses part of the dynamics and the median of its training
+    record's gap (:func:`_gaps`), and which effect was ranked first most often in its place.  The control (``none``) can only
     have wrong additions.  ``by``: the grouping, the hidden effect first (``("effect",
     "noise")``: per noise level too)."""
     ok = frame[frame["status"] == "ok"]
@@ -623,6 +657,8 @@ def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
             "start to final fall (median x)": group["start to final fall"].median(),
             "start to final fall (least x)": group["start to final fall"].min(),
             "wrong addition %": 100 * float(np.mean(wrong)),
+            "gap said %": 100 * float(group["gap said"].astype(float).mean()),
+            "train gap (median x)": group["train gap"].median(),
             "most often first": group["first effect"].mode().iloc[0] if group["first effect"].notna().any() else None,
         }
     table = pd.DataFrame.from_dict(rows, orient="index")
