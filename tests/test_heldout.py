@@ -492,22 +492,22 @@ def test_an_input_delay_is_not_judged_by_unprofiled_polishes(monkeypatch):
 
 
 def test_an_effect_outside_the_catalogue_is_said_from_the_record_it_was_fitted_on(tmp_path):
-    """Held-out tuning seed 8 with a hidden stiffness x|x| (outside the diagnosis's
+    """Held-out tuning seed 2 with a hidden friction tanh(x'/v) (outside the diagnosis's
     catalogue), noise 0.01, 8 s, from the base terms with the diagnosis: the final model of
-    the catalogue's terms missed the test record by 1.59 times what its noise allows, under
+    the catalogue's terms missed the test record by 1.58 times what its noise allows, under
     the test record's threshold of 2, and nothing was said; its free run of the training
-    record, from the polish's own start, misses by 1.17 times, where complete models of the
+    record, from the polish's own start, misses by 1.31 times, where complete models of the
     tuning seeds stay within 1.032.  The same seed without the effect says nothing."""
     from cvxid.app.run import TRAINING_INCOMPLETE
 
-    for effect, said in (("abs_stiffness", True), ("none", False)):
-        oscillator = draw(8, effect, 0.01, 8.0)
-        assert ("x * abs(x)" in oscillator.terms) == said
+    for effect, said in (("smooth_friction", True), ("none", False)):
+        oscillator = draw(2, effect, 0.01, 8.0)
+        assert any(t.startswith("tanh(x'") for t in oscillator.terms) == said
         result = run(write(oscillator, tmp_path / effect, "diagnosis")).to_dict()
         gap = (100 - result["train_fit_percent"]) / (100 - result["train_fit_percent_noise_ceiling"])
         test_gap = (100 - result["test_fit_percent"]) / (100 - result["test_fit_percent_noise_ceiling"])
-        gaps = [w for w in result["warnings"] if "part of the dynamics is not in the model" in w]
-        assert (gap >= TRAINING_INCOMPLETE) == said and test_gap < 2, (gap, test_gap)
+        gaps = [w for w in result["warnings"] if "part of the dynamics may be missing" in w]
+        assert (gap >= 1.2 if said else gap < TRAINING_INCOMPLETE) and test_gap < 2, (gap, test_gap)
         assert bool(gaps) == said, gaps
         if said:
             assert gaps[0].startswith("the final model's free run misses the training record it was fitted on by")

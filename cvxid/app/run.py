@@ -42,7 +42,7 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import band_period, spectral_peak
+from cvxid.metrics import HARMONICS, band_period, excess_in_band, noise_level, spectral_peak
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
@@ -165,10 +165,12 @@ def _at_top(tau: float | None, delay) -> bool:
 
 
 SHORT_OF_NOISE = 1.5
-"""A polished model whose simulation of the training record misses it by this many times
-its noise level (or more) leaves something out: on the held-out benchmark's tuning seeds
-(0–9, 242 systems, 8 s and 5–200 s, the gain given or estimated) the polish's RMS is at
-most 1.13 times the training output's noise level (docs/benchmarks.md)."""
+"""A polished model whose free run of the training record misses it by this many times
+what its noise allows (or more: :func:`_training_gap`, each coordinate of a coupled system
+too) leaves something out: on the held-out benchmark's tuning seeds the polish's RMS was at
+most 1.13 times the training output's noise level (0–9, 242 systems, 8 s and 5–200 s, the
+gain given or estimated: docs/benchmarks.md), and the training gap, which counts the
+input's noise too, 1.032 (220 runs; :data:`TRAINING_INCOMPLETE`)."""
 
 
 def _short_of_noise(out: RunResult, spec) -> bool:
@@ -661,15 +663,21 @@ r"""A final model is incomplete when its free run misses the test record by at l
 many times what the noise allows (:math:`(100 - \text{fit}) / (100 - \text{ceiling})`, the
 ratio of the free run's error to the noise's)."""
 
+IN_BAND = 0.5
+"""The share of a training record's free-run error beyond white noise that must lie in the
+motion's band (:func:`~cvxid.metrics.excess_in_band`) for its gap to be read as a missing
+force; less is a noise that is not white (:func:`_warn_incomplete`)."""
+
 TRAINING_INCOMPLETE = 1.1
-r"""A polished model is incomplete when its free run misses the training record it was
-fitted on by at least this many times what the noise allows (the ratio of
+r"""A polished model may be incomplete when its free run misses the training record it
+was fitted on by at least this many times what the noise allows (the ratio of
 :data:`INCOMPLETE`): the fitted record is long and the fit's own initial state is exact for
 it, so the ratio of a complete model stays near 1.  On the held-out benchmark's tuning
 seeds (0–9, noise 0.01 and 0.001, 220 runs: every catalogue effect found by the diagnosis
-from 8 s, and the true terms given on 5–200 s) complete models reached 1.032 at most; the
-effects outside the catalogue (``examples/incomplete_models.py``) left 1.05–13 where the
-catalogue's neighbours could not stand in for them (:func:`_warn_incomplete`)."""
+from 8 s, and the true terms given on 5–200 s) complete models under white noise reached
+1.032 at most; effects outside the catalogue (``examples/incomplete_models.py``) left
+medians of 1.02–1.08 at noise 0.01 (the catalogue's neighbours stand in for most of them)
+and 2.5–4.2 at 0.001.  A noise that is not white raises it too (:func:`_warn_incomplete`)."""
 
 
 def _warn_incomplete(out: RunResult) -> None:
@@ -680,26 +688,45 @@ def _warn_incomplete(out: RunResult) -> None:
     outside check's dead-zone spring (2.3 times), Stribeck and Dahl frictions (2.5 and 3.5
     times) and a second, unmodelled input (8.9 times) ended with no word between the drift's
     10 times and nothing; a fourteenth's stiffness :math:`x|x|` fitted as :math:`x^3`
-    missed its test record by 1.5 times and its training record by 2.3 times."""
+    missed its test record by 1.5 times and its training record by 2.3 times.  Where the
+    training record's gap alone is past its threshold the warning says the dynamics *may*
+    be incomplete, or the noise not white: a complete model under a mains hum or a filtered
+    sensor's noise (a review: 1.09–1.25 times) is told from a missing effect by neither
+    gap."""
     tests, trains = out.comparisons or {}, out.train_comparisons or {}
     for label in dict.fromkeys([*tests, *trains]):
         test, train = tests.get(label), trains.get(label)
         free = None if test is None else _noise_multiple(test, test.fit_percent)
         fitted = _training_gap(out, label)
-        if test is not None and _drifts(test) or not (
-                free is not None and free >= INCOMPLETE or fitted is not None and fitted >= TRAINING_INCOMPLETE):
+        over_test = free is not None and free >= INCOMPLETE
+        if test is not None and _drifts(test) or not (over_test or fitted is not None and fitted >= TRAINING_INCOMPLETE):
             continue
         where = "" if len(tests or trains) == 1 else f" of '{label}'"
+        inside = None if over_test else excess_in_band(train.measured, train.free_run, out.train.dt,
+                                                        noise_level(train.measured))
+        if inside is not None and inside < IN_BAND:
+            warnings.warn(
+                f"the final model's free run{where} misses the training record it was fitted on by {fitted:.3g} times "
+                f"what white noise of its level allows (fit {_percent(train.fit_percent)} % where the noise allows "
+                f"{_percent(train.ceiling_percent)} %), but {100 * (1 - inside):.3g} % of the excess lies above the "
+                f"motion's band (above {HARMONICS:g} times its band edge), where a missing force does not reach: the "
+                "measurement noise is not white (a mains hum, a sensor's filter), and the noise ceilings printed, "
+                "which assume white noise, are too high", CvxidWarning, stacklevel=2)
+            continue
         tried = (_refused(out) or "no candidate the diagnosis tried holds it" if out.spec.diagnose is not None
                  else "[diagnose] looks for it among the catalogue's effects")
+        claim = "part of the dynamics is not in the model" if over_test else (
+            f"part of the dynamics may be missing from the model ({100 * inside:.3g} % of the excess over white noise "
+            "lies in the motion's band, where a missing force errs), or the noise is not white there")
         warnings.warn(
             f"the final model's free run{where} misses " + _gap_records(test, free, train, fitted)
-            + f": part of the dynamics is not in the model, and {tried}. Effects outside the "
+            + f": {claim}, and {tried}. Effects outside the "
             "catalogue leave such a gap (a friction with memory or a Stribeck decay, a dead zone or backlash, "
             "an actuator's lag or saturation, a second input), as do a delay outside its search range, a second "
-            "loop with its own delay, a parameter that drifts over the record (fit its halves apart and compare) "
-            "and a noise that is not white (the ceiling assumes white noise)" + _jumping(out.test)
-            + ("" if test is None else _coarse(test, out.test))
+            "loop with its own delay, a parameter that drifts over the record (fit its halves apart and compare), "
+            "a fit stopped in a wrong basin of the simulation error (a complete model whose delay and gain are far "
+            "off: fit again from another start or a narrower delay range) and a noise that is not white"
+            + _jumping(out.test) + ("" if test is None else _coarse(test, out.test))
             + ("; test_fit.png shows where it fails, and" if test is not None else ";")
             + " cvxid.residuals(model, test).binned(\"velocity\") (or \"position\") "
             "against which state" + (". The 95 % intervals assume a complete model: with a part missing, the "
@@ -709,18 +736,17 @@ def _warn_incomplete(out: RunResult) -> None:
 
 
 def _gap_records(test, free: float | None, train, fitted: float | None) -> str:
-    """The gap warning's figures: each record's free-run fit against what its noise allows,
-    the record that crossed its threshold first."""
-    said = []
-    if free is not None:
-        said.append(f"the test record by {free:.3g} times what its noise allows (fit {_percent(test.fit_percent)} % "
-                    f"where the noise allows {_percent(test.ceiling_percent)} %)")
-    if fitted is not None:
-        said.append(f"the training record it was fitted on by {fitted:.3g} times what its noise allows (fit "
-                    f"{_percent(train.fit_percent)} % where the noise allows {_percent(train.ceiling_percent)} %)")
-    if free is None or free < INCOMPLETE:
-        said.reverse()
-    return ", and ".join(said)
+    """The gap warning's figures: the records whose free run is past its threshold, each
+    with its fit against what its noise allows, then the other record's gap as context."""
+    records = [(test, free, INCOMPLETE, "the test record"),
+               (train, fitted, TRAINING_INCOMPLETE, "the training record it was fitted on")]
+    past = [gap is not None and gap >= threshold for _, gap, threshold, _ in records]
+    said = ", and ".join(f"{name} by {gap:.3g} times what its noise allows (fit {_percent(c.fit_percent)} % where "
+                         f"the noise allows {_percent(c.ceiling_percent)} %)"
+                         for (c, gap, _, name), over in zip(records, past) if over)
+    within = "".join(f" ({name.split(' it was')[0]}: {gap:.3g} times)"
+                     for (_, gap, _, name), over in zip(records, past) if gap is not None and not over)
+    return said + within
 
 
 def _refused(out: RunResult) -> str:
@@ -1008,12 +1034,33 @@ def _compare(out: RunResult):
     estimated again): what the gap warning reads beside the test record
     (:func:`_warn_incomplete`)."""
     if out.polish is not None:
-        out.train_comparisons = compare_system(out.system, out.train, given=_polished_start(out))
+        start = _polished_start(out)
+        compared = compare_system(out.system, out.train, given=start)
+        if start is not None and not _reproduces(compared, out.polish):
+            start, compared = None, compare_system(out.system, out.train)
+        out.train_comparisons = compared if start is None else {
+            c: replace(m, initial="the polish's") for c, m in compared.items()}
     if out.test is None:
         return
     out.comparisons = compare_system(out.system, out.test)
     for message in dict.fromkeys(c.message for c in out.comparisons.values() if c.message):
         warnings.warn(message, CvxidWarning, stacklevel=2)
+
+
+SAME_RUN = 1e-6
+"""The relative difference between the training free run's RMS from the polish's start and
+the polish's own simulation RMS within which the two are the same simulation
+(:func:`_reproduces`; measured by a review: 1.2e-10 at most over 42 runs)."""
+
+
+def _reproduces(compared: dict, polish) -> bool:
+    """Whether the training free run of one equation from the polish's start is the
+    polish's own simulation (its RMS within :data:`SAME_RUN`); a coupled system's RMS
+    mixes its coordinates' and is taken as given."""
+    if len(compared) != 1:
+        return True
+    rms = next(iter(compared.values())).rms
+    return rms is not None and abs(rms / polish.rms_after - 1.0) <= SAME_RUN
 
 
 def _polished_start(out: RunResult) -> dict | None:

@@ -5,8 +5,8 @@ training data: a copy of its file under another name, or a part of it cut out an
 Its figures, and the diagnosis's choices made on it, would then be on data the fit saw.
 Measured samples carry noise, so a stretch of :data:`WIDTH` consecutive samples (every
 output and input) that appears verbatim in both records is a copy, not a coincidence;
-stretches where no output moves (a sensor at rest, a quantised record between steps) are
-not counted, as two records may share them by chance.
+stretches where the first output does not move (a sensor at rest, a quantised record
+between steps) are not looked up, as two records may share them by chance.
 """
 
 from __future__ import annotations
@@ -21,36 +21,40 @@ WIDTH = 8
 PROBES = 200
 """Test stretches looked up in the training record (evenly spaced over the moving ones)."""
 
-CANDIDATES = 20
-"""Training samples with a probe's first output value that are compared with the probe (a
-quantised record repeats its values)."""
+SPREAD = 20
+"""Evenly spaced test stretches a probe is chosen among (:data:`SPREAD` times
+:data:`PROBES`, those whose first output moves)."""
 
 
 def copied_share(train: Experiment, test: Experiment) -> float:
     r"""The share of ``test``'s moving stretches (:data:`PROBES` of them, :data:`WIDTH`
     samples each, every output and input of ``test`` that ``train`` has too) that appear
-    sample for sample in ``train``; 0 when the records share no column or ``test`` never
-    moves."""
-    outputs = [c for c in test.outputs if c in train.outputs]
-    inputs = [c for c in test.inputs if c in train.inputs]
-    if not outputs or min(train.n, test.n) < WIDTH:
+    sample for sample in ``train``; 0 when the records share no output or ``test`` never
+    moves.  Each probe's first value is looked up in the training record's first output
+    sorted once (every position holding it, a quantised record's many too), and the
+    candidates are narrowed sample by sample, then column by column."""
+    names = [("output", c) for c in test.outputs if c in train.outputs]
+    names += [("input", c) for c in test.inputs if c in train.inputs]
+    if not names or names[0][0] != "output" or min(train.n, test.n) < WIDTH:
         return 0.0
-    a = np.column_stack([train.output(c) for c in outputs] + [train.input(c) for c in inputs])
-    b = np.column_stack([test.output(c) for c in outputs] + [test.input(c) for c in inputs])
-    starts = np.arange(test.n - WIDTH + 1)
-    first = b[: test.n - WIDTH + 1, 0]
-    moving = np.ptp(np.lib.stride_tricks.sliding_window_view(b[:, 0], WIDTH), axis=1) > 0
-    starts = starts[moving & np.isfinite(first)]
+    a = [getattr(train, kind)(c) for kind, c in names]
+    b = [getattr(test, kind)(c) for kind, c in names]
+    starts = np.unique(np.linspace(0, test.n - WIDTH, SPREAD * PROBES).round().astype(int))
+    windows = b[0][starts[:, None] + np.arange(WIDTH)]
+    starts = starts[(np.ptp(windows, axis=1) > 0) & np.isfinite(windows).all(axis=1)]  # (NaN: a gap)
     if not starts.size:
         return 0.0
     probes = starts[np.linspace(0, starts.size - 1, min(PROBES, starts.size)).round().astype(int)]
-    order = np.argsort(a[:, 0], kind="stable")
-    keys = a[order, 0]
-    last = train.n - WIDTH
+    order = np.argsort(a[0], kind="stable")
     copied = 0
     for i in probes:
-        low, high = np.searchsorted(keys, b[i, 0], "left"), np.searchsorted(keys, b[i, 0], "right")
-        window = b[i: i + WIDTH]
-        copied += any(np.array_equal(a[j: j + WIDTH], window, equal_nan=True)
-                      for j in order[low: min(high, low + CANDIDATES)] if j <= last)
+        low, high = np.searchsorted(a[0], b[0][i], "left", order), np.searchsorted(a[0], b[0][i], "right", order)
+        candidates = order[low:high]
+        candidates = candidates[candidates <= train.n - WIDTH]
+        for column_a, column_b in zip(a, b):
+            for k in range(WIDTH):
+                if not candidates.size:
+                    break
+                candidates = candidates[column_a[candidates + k] == column_b[i + k]]
+        copied += bool(candidates.size)
     return copied / probes.size

@@ -40,7 +40,8 @@ class Comparison:
     ``free_run`` starts from ``initial_state`` (position, velocity), found the way
     ``initial`` says: ``"estimated"`` (least squares over the compared record,
     :mod:`cvxid.initial_state`), ``"record"`` (the record's smoothed first
-    state) or ``"given"``; ``record_fit_percent`` is the fit from the record's own start,
+    state), ``"given"`` or ``"the polish's"`` (the training record's, from the output-error
+    polish: ``RunResult.train_fit``); ``record_fit_percent`` is the fit from the record's own start,
     kept beside an estimated one; ``ceiling_percent`` is the fit a perfect model would reach
     under the record's measurement noise, the output's and the measured input's through the
     model (:func:`~cvxid.metrics.noise_ceiling_percent`,

@@ -152,7 +152,7 @@ class FitSettings:
     prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
 
 
-COPIED = 0.5
+COPIED = 0.1
 """The share of a test record's stretches found verbatim in the training record from which
 it is said to repeat it (:meth:`ProblemSpec.warn_overlap`)."""
 
@@ -315,7 +315,8 @@ class ProblemSpec:
         else:
             share = copied_share(train, test)
             said = (f"repeats [data.train] sample for sample on {100 * share:.3g} % of the stretches checked (a copy of "
-                    "the training record, or of part of it, under another name)") if share >= COPIED else ""
+                    "the training record, or of part of it, under another name; or the same motion repeated, which "
+                    "the noise does not change between the records: a quantised one)") if share >= COPIED else ""
         if said:
             warnings.warn(f"spec: [data.test] {said}: the test figures (and the diagnosis's choices) are then on data "
                           "the fit saw; give another record, or split one into parts that do not overlap (samples or "

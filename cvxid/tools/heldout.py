@@ -394,7 +394,8 @@ TRAILING = ["worst other %", "others covered %", "tau limit %", "tau error / lim
 DIAGNOSIS = ["first effect", "added", "added by simulation", "first added", "equation error fall",
              "free-run error fall", "start to final fall"]
 GAPS = ["train gap", "test gap", "gap said"]
-GAP_WORDS = ("part of the dynamics is not in the model", "the model lacks part of the dynamics")
+GAP_WORDS = ("part of the dynamics is not in the model", "part of the dynamics may be missing",
+             "the model lacks part of the dynamics")
 """What the gap and drift warnings say of a final model that misses part of the dynamics
 (:func:`_gaps`)."""
 SELECTION = ["support recovered", "missed", "spurious"]
@@ -448,7 +449,7 @@ def _gaps(result: dict) -> dict:
         fit, ceiling = result.get(f"{record}_fit_percent"), result.get(f"{record}_fit_percent_noise_ceiling")
         return np.nan if fit is None or ceiling is None else (100.0 - fit) / max(100.0 - ceiling, 1e-12)
     return {"train gap": gap("train"), "test gap": gap("test"),
-            "gap said": any(words in w for w in result["warnings"] for words in GAP_WORDS)}
+            "gap said": any(words in w for w in result.get("warnings", []) for words in GAP_WORDS)}
 
 
 def _delay_limit(out, oscillator: Oscillator) -> dict:
