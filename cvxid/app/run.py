@@ -1065,10 +1065,12 @@ def _reproduces(compared: dict, polish) -> bool:
 
 def _polished_start(out: RunResult) -> dict | None:
     """The training record's initial state (coordinate → (position, velocity)) the final
-    output-error polish estimated, when it fitted the final system on that record as one
-    stretch (the state is then the free run's own least-squares start); else None."""
+    output-error polish estimated, when it fitted that record as one stretch (the state is
+    then the free run's own least-squares start: :func:`_reproduces` checks one equation's
+    model against the polish's simulation, a coupled system must be the polish's own);
+    else None."""
     polish = out.polish
-    if polish.system is not out.system or len(polish.initial) != 1 or out.train.gaps:
+    if len(polish.initial) != 1 or out.train.gaps or out.coupled and polish.system is not out.system:
         return None
     return polish.initial[0]
 
