@@ -160,6 +160,16 @@ def noise_ceiling_percent(y: np.ndarray, driven: float = 0.0) -> float:
     return float(100 * (1 - np.hypot(noise_level(y), driven) / np.std(y)))
 
 
+def noise_multiple(fit: float | None, ceiling: float | None) -> float | None:
+    r"""A free run's error in multiples of what the noise allows, from its fit and the
+    noise's ceiling (both %, :func:`noise_ceiling_percent`):
+    :math:`(100 - \text{fit}) / (100 - \text{ceiling})`; None when either is missing (a
+    diverged simulation, no ceiling)."""
+    if fit is None or ceiling is None:
+        return None
+    return (100.0 - fit) / max(100.0 - ceiling, 1e-9)
+
+
 INPUT_NOISE_SHARE = 0.05
 """The largest white-noise level, as a share of an input's standard deviation, that
 :func:`measurement_noise` takes as measurement noise (above it: broadband excitation, white

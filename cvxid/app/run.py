@@ -42,7 +42,7 @@ from cvxid.identify.profile import profile_input_delay, with_input_tau
 from cvxid.identify.problem import Problem
 from cvxid.identify.stepwise import prune_by_simulation, stepwise_output_error
 from cvxid.identify.system import fit_support, identified
-from cvxid.metrics import HARMONICS, band_period, excess_in_band, noise_level, spectral_peak
+from cvxid.metrics import HARMONICS, band_period, excess_in_band, noise_level, noise_multiple, spectral_peak
 from cvxid.model.equation import LINEAR, LISTED
 from cvxid.model.input_delay import record_bound
 from cvxid.model.symbols import velocity_symbol
@@ -643,12 +643,9 @@ def _astray(c, start) -> str:
 
 
 def _noise_multiple(c, fit: float | None) -> float | None:
-    r"""A simulation's error on the test record (``fit``, %, of the comparison ``c``) in
-    multiples of what its noise allows, :math:`(100 - \text{fit}) / (100 - \text{ceiling})`;
-    None when either is missing (a diverged simulation, no ceiling)."""
-    if fit is None or c.ceiling_percent is None:
-        return None
-    return (100.0 - fit) / max(100.0 - c.ceiling_percent, 1e-9)
+    r"""A simulation's error on a record (``fit``, %, of the comparison ``c``) in
+    multiples of what its noise allows (:func:`~cvxid.metrics.noise_multiple`)."""
+    return noise_multiple(fit, c.ceiling_percent)
 
 
 def _drifts(c) -> bool:

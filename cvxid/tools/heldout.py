@@ -81,6 +81,7 @@ from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.compare import compare_system, mean_fit
 from cvxid.errors import CvxidError
 from cvxid.identify.output_error import delay_standard_error
+from cvxid.metrics import noise_multiple
 from cvxid.model.library import Library, resolve_term
 from cvxid.model.terms import parse_term
 from cvxid.progress import progress
@@ -446,8 +447,8 @@ def _gaps(result: dict) -> dict:
     \text{ceiling})` (NaN where a run diverged or the figures are missing), and whether a
     warning said part of the dynamics is missing (:data:`GAP_WORDS`)."""
     def gap(record: str) -> float:
-        fit, ceiling = result.get(f"{record}_fit_percent"), result.get(f"{record}_fit_percent_noise_ceiling")
-        return np.nan if fit is None or ceiling is None else (100.0 - fit) / max(100.0 - ceiling, 1e-12)
+        multiple = noise_multiple(result.get(f"{record}_fit_percent"), result.get(f"{record}_fit_percent_noise_ceiling"))
+        return np.nan if multiple is None else multiple
     return {"train gap": gap("train"), "test gap": gap("test"),
             "gap said": any(words in w for w in result.get("warnings", []) for words in GAP_WORDS)}
 
