@@ -195,8 +195,11 @@ def test_the_confusion_table_counts_right_and_wrong_additions():
         "first added": ["coulomb", "offset", "offset", None],
         "equation error fall": [8.0, np.nan, np.nan, np.nan], "free-run error fall": [4.0, 2.0, np.nan, np.nan],
         "start to final fall": [12.0, np.nan, np.nan, np.nan],
+        "gap said": [False, True, False, False], "train gap": [1.0, 1.3, 0.99, 1.01],
     })
     table = confusion(frame)
+    assert table.loc["coulomb", "gap said %"] == 50 and table.loc["none", "gap said %"] == 0
+    assert table.loc["coulomb", "train gap (median x)"] == pytest.approx(1.15)
     assert table.loc["coulomb", "added first %"] == 50 and table.loc["none", "added first %"] == 0
     assert table.loc["coulomb", "equation error fall (median x)"] == 8.0
     assert table.loc["coulomb", "free-run error fall (median x)"] == 3.0

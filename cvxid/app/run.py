@@ -689,7 +689,9 @@ def _warn_incomplete(out: RunResult) -> None:
     training record's gap alone is past its threshold the warning says the dynamics *may*
     be incomplete, or the noise not white: a complete model under a mains hum or a filtered
     sensor's noise (a review: 1.09–1.25 times) is told from a missing effect by neither
-    gap."""
+    gap, but by where the excess lies (:func:`~cvxid.metrics.excess_in_band`: a hum's or a
+    filtered noise's above the motion's band), and the run then says the noise is not
+    white instead."""
     tests, trains = out.comparisons or {}, out.train_comparisons or {}
     for label in dict.fromkeys([*tests, *trains]):
         test, train = tests.get(label), trains.get(label)

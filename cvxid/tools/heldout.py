@@ -629,16 +629,16 @@ level): adding them is not a wrong addition."""
 
 def confusion(frame: pd.DataFrame, by=("effect",)) -> pd.DataFrame:
     """Diagnosis mode, per hidden effect: how often the diagnosis ranked it first (by the
-    test equation error; collinear rivals by the test free run), how often it was added (by either stage, and by the simulation stage alone), how
-    often it was the first effect added, the median factors by which its addition lowered
-    the test record's equation error (MSE) and free-run error (RMS) at its step, the median
-    and least factors of the free-run error from the starting model to the final one
-    (:func:`_start_to_final`), how often another
-    effect was added (a wrong addition; not one of its :data:`PARTS`), how often a warning
-    said the final model misses part of the dynamics and the median of its training
-    record's gap (:func:`_gaps`), and which effect was ranked first most often in its place.  The control (``none``) can only
-    have wrong additions.  ``by``: the grouping, the hidden effect first (``("effect",
-    "noise")``: per noise level too)."""
+    test equation error; collinear rivals by the test free run), how often it was added (by
+    either stage, and by the simulation stage alone), how often it was the first effect
+    added, the median factors by which its addition lowered the test record's equation error
+    (MSE) and free-run error (RMS) at its step, the median and least factors of the free-run
+    error from the starting model to the final one (:func:`_start_to_final`), how often
+    another effect was added (a wrong addition; not one of its :data:`PARTS`), how often a
+    warning said the final model misses part of the dynamics and the median of its training
+    record's gap (:func:`_gaps`), and which effect was ranked first most often in its place.
+    The control (``none``) can only have wrong additions.  ``by``: the grouping, the hidden
+    effect first (``("effect", "noise")``: per noise level too)."""
     ok = frame[frame["status"] == "ok"]
     rows = {}
     for key, group in ok.groupby(list(by), sort=False):
