@@ -179,7 +179,8 @@ def test_a_csv_with_logger_jitter_runs_end_to_end(tmp_path):
 def test_csv_with_semicolons_decimal_commas_tabs_or_a_units_row_reads_the_same(tmp_path):
     """A spreadsheet's export: semicolons with decimal commas, tabs, or a row of units
     under the header (skipped with a warning); each used to be an error that did not name
-    its cause ("no column named 't'; available: t;x;f", "not numeric ... 'm'")."""
+    its cause ("no column named 't'; available: t;x;f", "not numeric ... 'm'").  Comment
+    lines (#) at the top are skipped, and a commented header (numpy's) is the header."""
     import warnings
 
     from cvxid import CvxidWarning
@@ -196,6 +197,13 @@ def test_csv_with_semicolons_decimal_commas_tabs_or_a_units_row_reads_the_same(t
         # an outside check: with a units row, read with commas first, it could not be parsed at all
         "semicolon_units.csv": "t;x;f\ns;m;N\n" + "\n".join(r.replace(",", ";").replace(".", ",") for r in rows),
         "semicolon_point.csv": "t;x;f\n" + "\n".join(r.replace(",", ";") for r in rows),
+        # a fifteenth outside check: a logger's comment lines above the header ended in pandas' tokenizer message;
+        # numpy's savetxt writes its header as a comment, which became a time column named "# t"
+        "comments.csv": "# logger v2\n# rate 100 Hz\nt,x,f\n" + "\n".join(rows),
+        "savetxt.csv": "# t,x,f\n" + "\n".join(rows),
+        "comments_units.csv": "# logger v2\nt,x,f\ns,m,N\n" + "\n".join(rows),
+        "comments_semicolon.csv": "# notes; more\n#t;x;f\n" + "\n".join(r.replace(",", ";").replace(".", ",")
+                                                                           for r in rows),
     }
     for name, text in variants.items():
         (tmp_path / name).write_text(text + "\n")

@@ -457,8 +457,12 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         except Exception as exc:  # pandas raises many types for malformed files
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
-    options = {"encoding": "utf-8-sig", **_separator(path)}  # (a byte-order mark is not the first name's)
-    header = [str(n).strip() for n in read(nrows=1, header=None, **options).iloc[0]]
+    skipped, commented = _comment_lines(path)
+    options = {"encoding": "utf-8-sig", **_separator(path, skipped),
+               **({"skiprows": list(range(skipped))} if skipped else {})}
+    name = (lambda c: str(c).strip().lstrip("#").strip()) if commented else (lambda c: str(c).strip())
+    #       (a byte-order mark is not the first name's; numpy's savetxt writes its header as a comment, "# t,x,f")
+    header = [name(n) for n in read(nrows=1, header=None, **options).iloc[0]]
     twice = sorted({n for n in header if header.count(n) > 1 and n not in ("", "nan") and not _numeric(n)})
     #              (empty fields are no names, and a line of numbers is no header: refused below)
     if twice:  # (pandas renames the second x.1: a twelfth outside check's two sensors named x, one read silently)
@@ -479,10 +483,10 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         if not any(_numeric(v) for v in first) and all(_numeric(v) for v in second):
             warnings.warn(f"{path}: the row under the header ({', '.join(first)}) is text in every column; it was "
                           "read as units and skipped", CvxidWarning, stacklevel=3)
-            options["skiprows"] = [1]
+            options["skiprows"] = list(range(skipped)) + [skipped + 1]
     if path.stat().st_size <= LARGE_CSV:
         frame = read(**options)
-        return {str(c).strip(): frame[c].to_numpy() for c in frame.columns}
+        return {name(c): frame[c].to_numpy() for c in frame.columns}
     pieces: dict[str, list[np.ndarray]] = {}
     try:
         with pd.read_csv(path, chunksize=CSV_CHUNK, **options) as chunks:
@@ -491,25 +495,51 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
                     pieces.setdefault(c, []).append(chunk[c].to_numpy())
     except Exception as exc:  # pandas raises many types for malformed files
         raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
-    return {str(c).strip(): np.concatenate(pieces.pop(c)) for c in list(pieces)}  # (as the whole file's: the last)
+    return {name(c): np.concatenate(pieces.pop(c)) for c in list(pieces)}  # (as the whole file's: the last)
 
 
-def _separator(path: Path) -> dict:
+def _comment_lines(path: Path) -> tuple[int, bool]:
+    """The lines at the top of a CSV file that start with ``#`` (a logger's notes), to be
+    skipped: all of them when a header line follows, all but the last when numbers follow
+    (the last is then the header, as numpy's ``savetxt`` writes it: ``# t,x,f``), and
+    whether the header is such a comment."""
+    try:
+        with open(path, encoding="utf-8-sig", errors="replace") as file:
+            lines = [file.readline() for _ in range(1000)]
+    except OSError as exc:
+        raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
+    count = 0
+    while count < len(lines) - 1 and lines[count].lstrip().startswith("#"):
+        count += 1
+    if count and _numbers_line(lines[count]):
+        return count - 1, True
+    return count, False
+
+
+def _numbers_line(line: str) -> bool:
+    """Whether a line of a CSV file holds numbers only (a data row, not a header)."""
+    fields = [f.strip() for f in re.split(r"[,;\t]", line) if f.strip()]
+    return bool(fields) and all(_numeric(f.replace(",", ".")) for f in fields)
+
+
+def _separator(path: Path, skipped: int = 0) -> dict:
     """pandas' options for the file's separator: of commas, semicolons and tabs, the one
     that splits the header line and the first data rows into the same number of fields
     (more than one), commas first; with semicolons a decimal comma unless the first rows
     hold decimal points and no decimal comma (a spreadsheet writes ``0``, not ``0,000``).
     (Read by pandas with commas first, a semicolon file's decimal commas split its rows
     into more fields than its header has, and a units row into fewer: no shape to recover
-    from.)  Blank lines before the header are skipped."""
+    from.)  Blank lines before the header are skipped, and the ``skipped`` comment lines at
+    the top (:func:`_comment_lines`; a commented header is read without its ``#``)."""
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as file:
-            lines = [line for line in (file.readline() for _ in range(1000)) if line.strip()][:201]
+            lines = [line for line in [file.readline() for _ in range(1000 + skipped)][skipped:] if line.strip()]
     except OSError as exc:
         raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
+    lines = lines[:201]
     if not lines:
         return {}
-    header, rows = lines[0], lines[1:] or lines[:1]
+    header, rows = lines[0].lstrip().lstrip("#"), lines[1:] or lines[:1]
 
     def fields(line, sep):
         return len(next(csv.reader([line], delimiter=sep)))
