@@ -327,8 +327,9 @@ def main(argv=None) -> int:
     p_bench.add_argument("--noises", default=None,
                          help="noise levels (--accuracy, default 0,0.001,0.01,0.05; --heldout, default drawn)")
     p_bench.add_argument("--heldout", action="store_true", help="random delayed oscillators cvxid's examples lack")
-    p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all; the selection modes: those whose "
-                              "terms the library holds)")
+    p_bench.add_argument("--effects", default=None, help="hidden effects, e.g. none,coulomb (--heldout, default all "
+                              "of the catalogue's; the selection modes: those whose terms the library holds; "
+                              "abs_stiffness and smooth_friction, outside the catalogue, only by name)")
     p_bench.add_argument("--duration", default=None,
                          help="record seconds, or several (20,200) to compare the same systems (--heldout, default drawn)")
     p_bench.add_argument("--mode", default="structure",
