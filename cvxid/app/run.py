@@ -737,14 +737,14 @@ def _warn_incomplete(out: RunResult) -> None:
 def _gap_records(test, free: float | None, train, fitted: float | None) -> str:
     """The gap warning's figures: the records whose free run is past its threshold, each
     with its fit against what its noise allows, then the other record's gap as context."""
-    records = [(test, free, INCOMPLETE, "the test record"),
-               (train, fitted, TRAINING_INCOMPLETE, "the training record it was fitted on")]
-    past = [gap is not None and gap >= threshold for _, gap, threshold, _ in records]
+    records = [(test, free, INCOMPLETE, "the test record", "the test record"),
+               (train, fitted, TRAINING_INCOMPLETE, "the training record it was fitted on", "the training record")]
+    past = [gap is not None and gap >= threshold for _, gap, threshold, _, _ in records]
     said = ", and ".join(f"{name} by {gap:.3g} times what its noise allows (fit {_percent(c.fit_percent)} % where "
                          f"the noise allows {_percent(c.ceiling_percent)} %)"
-                         for (c, gap, _, name), over in zip(records, past) if over)
-    within = "".join(f" ({name.split(' it was')[0]}: {gap:.3g} times)"
-                     for (_, gap, _, name), over in zip(records, past) if gap is not None and not over)
+                         for (c, gap, _, name, _), over in zip(records, past) if over)
+    within = "".join(f" ({short}: {gap:.3g} times)"
+                     for (_, gap, _, _, short), over in zip(records, past) if gap is not None and not over)
     return said + within
 
 

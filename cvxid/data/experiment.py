@@ -457,8 +457,9 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
         except Exception as exc:  # pandas raises many types for malformed files
             raise CvxidError(f"{path}: cannot be read as CSV with a header row ({exc})") from None
 
-    skipped, commented = _comment_lines(path)
-    options = {"encoding": "utf-8-sig", **_separator(path, skipped),
+    head = _head(path)
+    skipped, commented = _comment_lines(head)
+    options = {"encoding": "utf-8-sig", **_separator(head[skipped:]),
                **({"skiprows": list(range(skipped))} if skipped else {})}
     name = (lambda c: str(c).strip().lstrip("#").strip()) if commented else (lambda c: str(c).strip())
     #       (a byte-order mark is not the first name's; numpy's savetxt writes its header as a comment, "# t,x,f")
@@ -498,20 +499,28 @@ def _csv_columns(path: Path) -> dict[str, np.ndarray]:
     return {name(c): np.concatenate(pieces.pop(c)) for c in list(pieces)}  # (as the whole file's: the last)
 
 
-def _comment_lines(path: Path) -> tuple[int, bool]:
-    """The lines at the top of a CSV file that start with ``#`` (a logger's notes), to be
-    skipped: all of them when a header line follows, all but the last when numbers follow
-    (the last is then the header, as numpy's ``savetxt`` writes it: ``# t,x,f``), and
-    whether the header is such a comment."""
+HEAD_LINES = 1000
+"""The lines at the top of a CSV file its format is read off (:func:`_head`)."""
+
+
+def _head(path: Path) -> list[str]:
+    """The first :data:`HEAD_LINES` lines of a file (as read, blank ones too)."""
     try:
         with open(path, encoding="utf-8-sig", errors="replace") as file:
-            lines = [file.readline() for _ in range(1000)]
+            return [file.readline() for _ in range(HEAD_LINES)]
     except OSError as exc:
         raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
+
+
+def _comment_lines(head: list[str]) -> tuple[int, bool]:
+    """The lines at the top of a CSV file (its ``head``, :func:`_head`) that start with
+    ``#`` (a logger's notes), to be skipped: all of them when a header line follows, all but
+    the last when numbers follow (the last is then the header, as numpy's ``savetxt`` writes
+    it: ``# t,x,f``), and whether the header is such a comment."""
     count = 0
-    while count < len(lines) - 1 and lines[count].lstrip().startswith("#"):
+    while count < len(head) - 1 and head[count].lstrip().startswith("#"):
         count += 1
-    if count and _numbers_line(lines[count]):
+    if count and _numbers_line(head[count]):
         return count - 1, True
     return count, False
 
@@ -522,21 +531,17 @@ def _numbers_line(line: str) -> bool:
     return bool(fields) and all(_numeric(f.replace(",", ".")) for f in fields)
 
 
-def _separator(path: Path, skipped: int = 0) -> dict:
-    """pandas' options for the file's separator: of commas, semicolons and tabs, the one
-    that splits the header line and the first data rows into the same number of fields
-    (more than one), commas first; with semicolons a decimal comma unless the first rows
-    hold decimal points and no decimal comma (a spreadsheet writes ``0``, not ``0,000``).
-    (Read by pandas with commas first, a semicolon file's decimal commas split its rows
-    into more fields than its header has, and a units row into fewer: no shape to recover
-    from.)  Blank lines before the header are skipped, and the ``skipped`` comment lines at
-    the top (:func:`_comment_lines`; a commented header is read without its ``#``)."""
-    try:
-        with open(path, encoding="utf-8-sig", errors="replace") as file:
-            lines = [line for line in [file.readline() for _ in range(1000 + skipped)][skipped:] if line.strip()]
-    except OSError as exc:
-        raise CvxidError(f"{path}: cannot be read ({exc.strerror})") from None
-    lines = lines[:201]
+def _separator(head: list[str]) -> dict:
+    """pandas' options for the file's separator, read off its ``head`` from the header
+    line on (:func:`_head`, its comment lines cut: :func:`_comment_lines`): of commas,
+    semicolons and tabs, the one that splits the header line and the first data rows into
+    the same number of fields (more than one), commas first; with semicolons a decimal comma
+    unless the first rows hold decimal points and no decimal comma (a spreadsheet writes
+    ``0``, not ``0,000``).  (Read by pandas with commas first, a semicolon file's decimal
+    commas split its rows into more fields than its header has, and a units row into fewer:
+    no shape to recover from.)  Blank lines before the header are skipped, and a commented
+    header is read without its ``#``."""
+    lines = [line for line in head if line.strip()][:201]
     if not lines:
         return {}
     header, rows = lines[0].lstrip().lstrip("#"), lines[1:] or lines[:1]
