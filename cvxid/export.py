@@ -9,7 +9,8 @@ rational transfer function:
 
     \frac{X(s)}{F(s)} = \frac{1}{m s^2 + c s + k - b\, s^q\, N(s)/D(s)},
 
-with :math:`c = \partial g/\partial \dot x` and :math:`k = \partial g/\partial x` at rest.
+with :math:`c = \partial g/\partial \dot x` and :math:`k = \partial g/\partial x` at rest
+(the paper's :math:`b_0 x(t-\tau) + b_1 \dot x(t-\tau)`: :math:`(b_0 + b_1 s)\,N(s)/D(s)`).
 An input delay :math:`u(t-\tau_u)` (:mod:`cvxid.model.input_delay`) is a second Padé
 approximation in series before the plant.
 """
@@ -74,10 +75,10 @@ def linearized_tf(model, pade_order: int = 6):
     system = model.system()
     k, c = _linear_terms(system)
     plant = control.tf([1.0], [float(system.mass), c, k])
-    if system.gain:
+    if system.gain or system.rate_gain:
         num, den = control.pade(float(system.tau), pade_order)
-        delay = control.tf(num, den) * (control.tf([1.0, 0.0], [1.0]) if system.derivative else 1)
-        plant = control.feedback(plant, float(system.gain) * delay, sign=+1)
+        fed = [float(system.rate_gain), float(system.gain)] + [0.0] * system.derivative  # b1 s + b0, or b s
+        plant = control.feedback(plant, control.tf(num, den) * control.tf(fed, [1.0]), sign=+1)
     tau_u = model.spec.input_tau
     if tau_u:
         num, den = control.pade(tau_u, pade_order)
@@ -92,8 +93,8 @@ def to_nlsys(model, pade_order: int = 6):
     system = model.system()
     coord = system.coordinate
     coefs = np.atleast_1d(system.coefficients)
-    mass, gain = float(system.mass), float(system.gain)
-    pade = _pade(float(system.tau), pade_order) if gain else None
+    mass, gain, rate_gain = float(system.mass), float(system.gain), float(system.rate_gain)
+    pade = _pade(float(system.tau), pade_order) if gain or rate_gain else None
     npade = 0 if pade is None else pade.nstates
     lag = _pade(model.spec.input_tau, pade_order) if model.spec.input_tau else None  # the input's delay
     nlag = 0 if lag is None else lag.nstates
@@ -110,9 +111,9 @@ def to_nlsys(model, pade_order: int = 6):
             f, dw = float((lag.C @ w + lag.D.ravel() * f)[0]), (lag.A @ w + lag.B.ravel() * f).ravel()
         feed = 0.0
         dz = np.zeros(0)
-        if pade is not None:
-            signal = x if system.derivative == 0 else v
-            feed = gain * float((pade.C @ z + pade.D.ravel() * signal)[0])
+        if pade is not None:  # (one Padé delay of the fed-back combination: b x + b1 x', or b x')
+            signal = gain * x + rate_gain * v if system.derivative == 0 else gain * v
+            feed = float((pade.C @ z + pade.D.ravel() * signal)[0])
             dz = (pade.A @ z + pade.B.ravel() * signal).ravel()
         a = (f + feed - g(x, v)) / mass
         return np.concatenate([[v, a], dz, dw])

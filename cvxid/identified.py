@@ -78,15 +78,17 @@ class IdentifiedModel:
         lib = [t for t in self.spec.library if terms[t.name] != 0.0]
         delay = self.spec.delay
         history = history or (delay.history if delay else "zero")
+        gain = (*(gain or (0.0,)), 0.0)  # (the signal's, its rate's)
         return System(
             terms=tuple(lib),
             coefficients=np.array([terms[t.name] for t in lib]),
             mass=mass,
             coordinate=self.spec.coordinate,
-            gain=gain or 0.0,
+            gain=gain[0],
             tau=tau or 0.0,
             derivative=delay.derivative if delay else 0,
             history=history,
+            rate_gain=gain[1],
         )
 
     def equation(self) -> str:
@@ -95,8 +97,8 @@ class IdentifiedModel:
         text = self.system().equation().replace(" = f", f" = {self.spec.input_text()}", 1)
         delay = self.spec.delay
         if delay is not None and delay.coordinate != self.spec.coordinate:  # fed back from another coordinate
-            own = self.spec.coordinate + "'" * delay.derivative
-            text = text.replace(f" {own}(t - ", f" {delay.signal}(t - ")
+            for order, signal in zip(delay.orders, delay.signals):
+                text = text.replace(f" {self.spec.coordinate}{chr(39) * order}(t - ", f" {signal}(t - ")
         return text
 
     def equation_latex(self) -> str:
@@ -107,9 +109,11 @@ class IdentifiedModel:
         for term, c in zip(system.terms, np.atleast_1d(system.coefficients)):
             lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}" + ("" if term.name == "1" else f"\\,{term.latex}")
         rhs = self.spec.input_text()
-        if system.gain:
-            gain, signal = float(system.gain), latex_symbol(self.spec.delay.signal)
-            rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g}\\,{signal}(t - {float(system.tau):.6g})"
+        if self.spec.delay is not None:
+            for gain, signal in zip((system.gain, system.rate_gain), self.spec.delay.signals):
+                if float(gain):
+                    rhs += (f" {'-' if gain < 0 else '+'} {abs(float(gain)):.6g}\\,{latex_symbol(signal)}"
+                            f"(t - {float(system.tau):.6g})")
         return f"{lhs} = {rhs}"
 
     def regression_equation(self) -> str:
@@ -195,9 +199,10 @@ class IdentifiedModel:
                 "mass": spec.mass,
                 "library": spec.library.names,
                 "delay": None if delay is None else {
-                    "coordinate": delay.coordinate, "derivative": delay.derivative, "gain": delay.gain, "taylor_order": delay.taylor_order,
-                    "method": delay.method, "tau_min": delay.tau_min, "tau_max": delay.tau_max,
-                    "history": delay.history,
+                    "coordinate": delay.coordinate, "derivative": delay.derivative,
+                    "gain": list(delay.gain) if delay.rate and delay.gain is not None else delay.gain,
+                    "taylor_order": delay.taylor_order, "method": delay.method, "tau_min": delay.tau_min,
+                    "tau_max": delay.tau_max, "history": delay.history, "rate": delay.rate,
                 },
                 "nonnegative": list(spec.nonnegative),
                 "names": dict(spec.names),
@@ -228,8 +233,10 @@ class IdentifiedModel:
             delay = None
             if m["delay"] is not None:
                 d = m["delay"]
-                delay = DelayedFeedback(str(d.get("coordinate", coord)), int(d["derivative"]), d["gain"], int(d["taylor_order"]), str(d["method"]),
-                                        float(d["tau_max"]), float(d["tau_min"]), str(d["history"]))
+                gain = tuple(d["gain"]) if isinstance(d["gain"], list) else d["gain"]
+                delay = DelayedFeedback(str(d.get("coordinate", coord)), int(d["derivative"]), gain,
+                                        int(d["taylor_order"]), str(d["method"]), float(d["tau_max"]),
+                                        float(d["tau_min"]), str(d["history"]), bool(d.get("rate", False)))
             spec = ModelSpec(
                 library=Library(parse_term(n, (coord, *others)) for n in m["library"]),
                 coordinate=coord, input=str(m["input"]), inertia=bool(m["inertia"]), mass=float(m["mass"]),
@@ -349,7 +356,7 @@ class IdentifiedSystem:
         for model in self.models.values():
             s = model.system()
             equations.append(Equation(model.spec.coordinate, float(s.mass), s.terms,
-                                      tuple(np.atleast_1d(s.coefficients)), 1.0, float(s.gain)))
+                                      tuple(np.atleast_1d(s.coefficients)), 1.0, float(s.gain), float(s.rate_gain)))
             if model.spec.delay is not None:
                 delayed, tau, history = model.spec.delay.coordinate, float(s.tau), s.history
                 derivative = model.spec.delay.derivative
@@ -516,7 +523,7 @@ def system_physical(specs: dict[str, ModelSpec], coefficients: dict[str, dict[st
                 pname = f"{coord}:m" if term == spec.inertia_term.name else f"{coord}:{term}"
             out[pname] = sign * value
         if spec.delay is not None and spec.delay.gain is None:
-            out[f"{coord}:gain"] = gain
+            out.update({f"{coord}:{name}": value for name, value in zip(spec.gain_names, gain)})
     if tau is not None:
         out["tau"] = tau
     late = next(iter(specs.values())).input_delay  # (shared by every equation)

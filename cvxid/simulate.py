@@ -2,13 +2,14 @@ r"""Simulation of delayed second-order systems: one integrator for N >= 1 coordi
 
 .. math::
 
-    m_i\,\ddot q_i + \sum_j c_{ij}\, g_{ij}(q, \dot q) = \beta_i\, u_i(t) + b_i\, q_d^{(r)}(t-\tau),
-    \qquad i = 1..N,
+    m_i\,\ddot q_i + \sum_j c_{ij}\, g_{ij}(q, \dot q) = \beta_i\, u_i(t) + b_i\, q_d^{(r)}(t-\tau)
+    + b'_i\, q_d^{(r+1)}(t-\tau), \qquad i = 1..N,
 
 where every equation has its own coordinate :math:`q_i` (its second derivative is the
 equation's inertia), the terms may read every coordinate, and :math:`q_d^{(r)}` (position,
 :math:`r = 0`, or velocity, :math:`r = 1`) of one coordinate is fed back with the delay
-:math:`\tau`.  A single equation (:class:`System`) is the case :math:`N = 1`; a coupled
+:math:`\tau`, and with :math:`r = 0` its rate too (the paper's
+:math:`b_0 x(t-\tau) + b_1 \dot x(t-\tau)`; :math:`b'_i = 0` without it).  A single equation (:class:`System`) is the case :math:`N = 1`; a coupled
 one is a :class:`CoupledSystem`.  Both run through :func:`integrate`.
 
 The method is the classical fixed-step Runge–Kutta method.  An equation's own Coulomb
@@ -137,8 +138,10 @@ class System:
     tau: float | np.ndarray = 0.0
     derivative: int = 0
     history: str = "zero"
+    rate_gain: float | np.ndarray = 0.0  # the fed-back signal's rate's: + rate_gain x'(t - tau)
 
     def __post_init__(self):
+        _check_rate(self.derivative, self.rate_gain)
         if self.history not in HISTORIES:
             raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{self.history}'")
         if np.any(np.asarray(self.tau) < 0):
@@ -150,11 +153,18 @@ class System:
         for t, c in zip(self.terms, coefs):
             lhs += f" {'-' if c < 0 else '+'} {abs(c):.6g}" + ("" if t.name == "1" else f" {t.name}")  # (an offset)
         rhs = "f"
-        gain = float(np.ravel(self.gain)[0])
-        if gain:
-            s = self.coordinate + "'" * self.derivative
-            rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
+        for order, gain in enumerate((self.gain, self.rate_gain), self.derivative):
+            gain = float(np.ravel(gain)[0])
+            if gain:
+                s = self.coordinate + "'" * order
+                rhs += f" {'-' if gain < 0 else '+'} {abs(gain):.6g} {s}(t - {float(np.ravel(self.tau)[0]):.6g})"
         return f"{lhs} = {rhs}"
+
+
+def _check_rate(derivative: int, rate_gain) -> None:
+    if np.any(np.asarray(rate_gain) != 0) and derivative != 0:
+        raise CvxidError("a fed-back velocity's rate (an acceleration) cannot be fed back: a rate gain needs the "
+                         "position fed back (derivative 0)")
 
 
 @dataclass(frozen=True)
@@ -167,6 +177,7 @@ class Equation:
     coefficients: tuple[float, ...]
     input_gain: float = 1.0
     delay_gain: float = 0.0
+    delay_rate_gain: float = 0.0  # of the fed-back signal's rate
 
 
 @dataclass(frozen=True)
@@ -180,11 +191,18 @@ class CoupledSystem:
     history: str = "zero"
     derivative: int = 0
 
+    def __post_init__(self):
+        _check_rate(self.derivative, [eq.delay_rate_gain for eq in self.equations])
+
     def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Coefficients ``(T, 1)``, inertias and delay gains ``(C, 1)``: a batch of one for
+        """Coefficients ``(T, 1)``, inertias ``(C, 1)`` and delay gains ``(Q, C, 1)`` (the
+        signal's, then its rate's when one is fed back): a batch of one for
         :func:`integrate`."""
+        gains = [[[eq.delay_gain] for eq in self.equations]]
+        if any(eq.delay_rate_gain for eq in self.equations):
+            gains.append([[eq.delay_rate_gain] for eq in self.equations])
         return (np.concatenate([eq.coefficients for eq in self.equations])[:, None],
-                np.array([[eq.mass] for eq in self.equations]), np.array([[eq.delay_gain] for eq in self.equations]))
+                np.array([[eq.mass] for eq in self.equations]), np.array(gains, float))
 
 
 def substeps_for(output: np.ndarray, dt: float) -> int:
@@ -209,8 +227,8 @@ def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndar
     shape ``(n,)``, or ``(n, B)`` for a batch.
     """
     coefs = np.atleast_2d(np.asarray(system.coefficients, dtype=float))
-    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain), np.size(x0),
-                np.size(v0))
+    batch = max(coefs.shape[0], np.size(system.mass), np.size(system.tau), np.size(system.gain),
+                np.size(system.rate_gain), np.size(x0), np.size(v0))
     row = lambda a: np.broadcast_to(np.asarray(a, float), (batch,))[None, :]  # noqa: E731  (1, B)
     t = np.asarray(time, dtype=float)
 
@@ -220,14 +238,21 @@ def simulate(system: System, time: np.ndarray, force: Force, x0: float | np.ndar
 
     X, V = integrate(
         t, forces, [system.coordinate], [tuple(system.terms)], np.broadcast_to(coefs, (batch, coefs.shape[1])).T,
-        row(system.mass), row(system.gain), row(system.tau)[0], row(x0), row(v0), 0, system.derivative,
-        system.history, substeps, past,
+        row(system.mass), _gains(system.gain, system.rate_gain, row), row(system.tau)[0], row(x0), row(v0), 0,
+        system.derivative, system.history, substeps, past,
     )
     xs, vs = X[:, 0, :], V[:, 0, :]
-    single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.mass))
+    single = all(np.ndim(a) == 0 for a in (system.tau, system.gain, system.rate_gain, system.mass))
     if xs.shape[1] == 1 and np.ndim(system.coefficients) == 1 and single:
         return xs[:, 0], vs[:, 0]
     return xs, vs
+
+
+def _gains(gain, rate_gain, row) -> np.ndarray:
+    """The feedback gains ``(Q, 1, B)`` of one equation: the signal's, and its rate's when
+    one is fed back."""
+    fed = [gain] + ([rate_gain] if np.any(np.asarray(rate_gain) != 0) else [])
+    return np.stack([row(g) for g in fed])
 
 
 def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | list[Force], x0: dict,
@@ -249,7 +274,7 @@ def simulate_coupled(system: CoupledSystem, time: np.ndarray, force: Force | lis
     batch = np.ndim(x0[coords[0]]) > 0
     starts = [np.array([np.atleast_1d(np.asarray(s[c], float)) for c in coords]) for s in (x0, v0)]
     width = starts[0].shape[1]
-    coefs, mass, delay_gain = (np.repeat(a, width, axis=1) for a in system.arrays())
+    coefs, mass, delay_gain = (np.repeat(a, width, axis=-1) for a in system.arrays())
     X, V = integrate(t, forces, coords, [eq.terms for eq in system.equations], coefs, mass, delay_gain,
                      np.full(width, system.tau), *starts, _delayed_index(system), system.derivative, system.history,
                      substeps, past)
@@ -270,16 +295,20 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
               x0: np.ndarray, v0: np.ndarray, delayed: int, derivative: int = 0, history: str = "zero",
               substeps: int = 1, past: Past | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The one integrator.  ``C`` coordinates, ``B`` variants: ``terms[i]`` are equation
-    ``i``'s terms, ``coefs`` ``(T, B)`` all equations' coefficients in order, ``mass`` and
-    ``gain`` (of the delayed feedback) ``(C, B)``, ``tau`` ``(B,)``, initial states
-    ``(C, B)``; ``forces(fine, h)`` gives each equation's input at the RK4 nodes and
-    midpoints ``fine`` of step ``h``, broadcastable to ``(S, C, B)``; ``delayed`` is the
-    index of the fed-back coordinate, ``derivative`` 0 (position) or 1 (velocity);
-    ``past`` the fed-back signal before ``t[0]`` for ``history = "measured"``.
+    ``i``'s terms, ``coefs`` ``(T, B)`` all equations' coefficients in order, ``mass``
+    ``(C, B)``, ``gain`` of the delayed feedback ``(C, B)`` or ``(Q, C, B)`` (the signal's,
+    then its rate's), ``tau`` ``(B,)``, initial states ``(C, B)``; ``forces(fine, h)`` gives
+    each equation's input at the RK4 nodes and midpoints ``fine`` of step ``h``,
+    broadcastable to ``(S, C, B)``; ``delayed`` is the index of the fed-back coordinate,
+    ``derivative`` 0 (position) or 1 (velocity); ``past`` the fed-back signal (and its
+    rate) before ``t[0]`` for ``history = "measured"``.
     Returns positions and velocities ``(n, C, B)`` at the samples ``t``."""
     if history not in HISTORIES:
         raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{history}'")
     mass, gain = np.asarray(mass, float), np.asarray(gain, float)
+    gain = gain[None] if gain.ndim == 2 else gain
+    if gain.shape[0] > 1 and derivative != 0:
+        raise CvxidError("a fed-back velocity's rate (an acceleration) cannot be fed back")
     if np.any(mass <= 0):
         raise SimulationDiverged(
             f"the model's inertia is {np.min(mass):g} (not positive): it cannot be simulated; "
@@ -298,8 +327,10 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
     offs, ws = hermite_stages(tau, h)
     x0 = np.ascontiguousarray(np.broadcast_to(np.asarray(x0, float), (C, B)))
     v0 = np.ascontiguousarray(np.broadcast_to(np.asarray(v0, float), (C, B)))
-    fill = x0[delayed].copy() if (history == "initial" and derivative == 0) else np.zeros(B)
-    past_values, past_slopes = _past_nodes(history, past, t[0], tau, h, np.any(gain != 0))
+    fill = np.zeros((gain.shape[0], B))
+    if history == "initial" and derivative == 0:
+        fill[0] = x0[delayed]
+    past_values, past_slopes = _past_nodes(history, past, t[0], tau, h, np.any(gain != 0), gain.shape[0])
     codes = _term_codes(coordinates, terms)
     # every array C-contiguous and writable: one compiled signature (numba types a read-only
     # view apart, and would compile the kernel again for it)
@@ -337,19 +368,23 @@ def delay_substeps(tau: np.ndarray, dt: float, substeps: int = 1) -> int:
 
 
 def _past_nodes(history: str, past: Past | None, start: float, tau: np.ndarray, h: float,
-                fed_back: bool) -> tuple[np.ndarray, np.ndarray]:
-    """The past signal and its slope at the nodes ``start - j h`` that the longest delay
-    reads (oldest first), or empty arrays when the history is assumed."""
+                fed_back: bool, signals: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The past signals (the fed-back one, then its rate) and their slopes ``(signals, P)``
+    at the nodes ``start - j h`` that the longest delay reads (oldest first), or empty
+    arrays when the history is assumed."""
     if history != "measured" or not fed_back:
-        return np.zeros(0), np.zeros(0)
+        return np.zeros((signals, 0)), np.zeros((signals, 0))
     if past is None:
         raise CvxidError(
             'history = "measured" reads the fed-back signal before the start: pass past= (see '
             'cvxid.regression.history), or simulate with history "zero" or "initial"'
         )
     nodes = start - h * np.arange(int(np.ceil(np.max(tau) / h)) + 2, 0, -1)
-    values, slopes = past(nodes)
-    return np.ascontiguousarray(values, float), np.ascontiguousarray(slopes, float)
+    values, slopes = (np.atleast_2d(np.asarray(a, float)) for a in past(nodes))
+    if values.shape[0] < signals:
+        raise CvxidError(f"past= gives {values.shape[0]} fed-back signal(s), the feedback reads {signals}: "
+                         "the signal and its rate (cvxid.regression.history.measured_past with orders (0, 1))")
+    return np.ascontiguousarray(values[:signals]), np.ascontiguousarray(slopes[:signals])
 
 
 def half_steps(force: Force, t: np.ndarray, h: float, steps: int) -> np.ndarray:
@@ -489,8 +524,9 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 # ---------------------------------------------------------------------- kernels
 @njit(cache=True, error_model="numpy", inline="always")
 def _delayed_value(b, x, v, i, w0, w1, w2, w3, end, d, q, instant, fill, Hy, Hd, X, V, A, steps):
-    """:math:`q_d^{(r)}` at the delayed time that falls ``i`` nodes on with the Hermite
-    weights ``w`` (or before t = 0); ``end``: the stage ends a step."""
+    """:math:`q_d^{(q)}` at the delayed time that falls ``i`` nodes on with the Hermite
+    weights ``w`` (or before t = 0); ``end``: the stage ends a step; ``fill``, ``Hy``,
+    ``Hd``: this signal's assumed value, measured past and its slope."""
     if instant[b]:
         return x[d] if q == 0 else v[d]
     P = Hy.size
@@ -568,15 +604,15 @@ def _program(ops, args, first, stop, x, v, stack):
 
 
 @njit(cache=True, error_model="numpy", inline="always")
-def _accel(b, x, v, qd, f, terms, stack, sign, bound, modes, own, mass, coefs, gain, hs, out):
-    """Every equation's acceleration at the state (x, v) with the delayed signal ``qd`` and
-    the inputs ``f``.  Each coordinate's own frictions (``sign(q')`` and ``sign(q') *
+def _accel(b, x, v, f, terms, stack, sign, bound, modes, own, mass, coefs, hs, out):
+    """Every equation's acceleration at the state (x, v) with the forces ``f`` (the inputs
+    and the delayed feedback).  Each coordinate's own frictions (``sign(q')`` and ``sign(q') *
     factor``, positive) add up to one bound: sliding in the direction ``modes`` it acts
     against the motion; at rest (mode 0) it is the clip over the step ``hs``."""
     eqs, kinds, px, pv, tc, scale, starts, stops, ops, args = terms
     C = x.size
     for e in range(C):
-        out[e] = f[e] + gain[e, b] * qd
+        out[e] = f[e]
         bound[e] = 0.0
     for m in range(eqs.size):
         kind = kinds[m]
@@ -648,8 +684,12 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
             i += k
             for e in range(C):
                 f[e] = _input_at(F, 2 * (k + frac + c * r), e, b)
-        qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q, instant, fill, Hy, Hd, X, V, A, steps)
-        _accel(b, xs, vs, qd, f, terms, stack, sign, bound, modes, own, mass, coefs, gain, hs, a[j])
+        for s in range(gain.shape[0]):  # the fed-back signal, then its rate
+            qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q + s, instant, fill[s], Hy[s], Hd[s], X, V,
+                                A, steps)
+            for e in range(C):
+                f[e] += gain[s, e, b] * qd
+        _accel(b, xs, vs, f, terms, stack, sign, bound, modes, own, mass, coefs, hs, a[j])
         if j == 0 and frac == 0.0:  # the later stages may read this step's slope of a fed-back velocity
             A[k, :, b] = a[0]
     for e in range(C):
@@ -827,28 +867,32 @@ def _python_kernel(coordinates, terms, F, mass, coefs, gain, d, q, offs, ws, tau
     own = np.zeros((C, B), bool)  # coordinates with their own (positive) friction
     for row, (e, j, _) in frictions.items():
         own[e] |= (j == e) & (coefs[row] > 0)
-    y_hist, d_hist = (X, V) if q == 0 else (V, A)
-    P = Hy.size
+    P = Hy.shape[1]
 
-    def node(j, cols):  # node j of the fed-back signal: the measured past before the start (j < 0)
+    def node(s, j, cols):  # node j of fed-back signal s: the measured past before the start (j < 0)
+        y_hist, d_hist = (X, V) if q + s == 0 else (V, A)
         inside = np.clip(j, 0, steps)
         if P == 0:
             return y_hist[inside, d, cols], d_hist[inside, d, cols]
         before = np.clip(P + j, 0, P - 1)
-        return (np.where(j < 0, Hy[before], y_hist[inside, d, cols]),
-                np.where(j < 0, Hd[before], d_hist[inside, d, cols]))
+        return (np.where(j < 0, Hy[s, before], y_hist[inside, d, cols]),
+                np.where(j < 0, Hd[s, before], d_hist[inside, d, cols]))
 
-    def delayed(x, v, i, w, end, cols):
+    def delayed(x, v, i, w, end, cols):  # every equation's feedback force (C, cols)
         early = (i < 0) | ((i == 0) & (w[0] == 1.0) & end) if P == 0 else np.zeros(cols.size, bool)
         j = np.clip(i, -P, steps - 1)
-        (y0, d0), (y1, d1) = node(j, cols), node(j + 1, cols)
-        out = w[0] * y0 + w[1] * d0 + w[2] * y1 + w[3] * d1
-        return np.where(instant[cols], x[d] if q == 0 else v[d], np.where(early, fill[cols], out))
+        force = np.zeros((C, cols.size))
+        for s in range(gain.shape[0]):  # the fed-back signal, then its rate
+            (y0, d0), (y1, d1) = node(s, j, cols), node(s, j + 1, cols)
+            out = w[0] * y0 + w[1] * d0 + w[2] * y1 + w[3] * d1
+            qd = np.where(instant[cols], x[d] if q + s == 0 else v[d], np.where(early, fill[s, cols], out))
+            force += gain[s][:, cols] * qd[None, :]
+        return force
 
-    def accel(x, v, qd, f, modes, hs, cols):
+    def accel(x, v, feedback, f, modes, hs, cols):
         states = {c: x[j] for j, c in enumerate(coordinates)}
         states.update({velocity_symbol(c): v[j] for j, c in enumerate(coordinates)})
-        out = f + gain[:, cols] * qd[None, :]
+        out = f + feedback
         for e, eq_terms in enumerate(terms):  # frictions act last: an equation's own may stick
             for m, term in enumerate(eq_terms):
                 if rows[e] + m not in frictions:

@@ -113,7 +113,7 @@ def _problems(args) -> int:
 
 
 HELDOUT_FLAGS = ("effects", "duration", "keep", "estimator", "selection", "stability", "prune", "known_gain",
-                 "systems")
+                 "systems", "feedback")
 """``cvxid bench`` flags that only the held-out benchmark reads (``--mode`` too, when not its default)."""
 
 
@@ -252,12 +252,13 @@ def _heldout(args) -> int:
         raise CvxidError("--estimator stepwise_oe selects terms from a library without a diagnosis: use it with "
                          "--mode selection")
     start = time.perf_counter()
-    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain, fit)
-                       for length in lengths], ignore_index=True)
+    frame = pd.concat([heldout(seeds, effects, noises, length, args.mode, args.jobs, args.keep, args.known_gain, fit,
+                               args.feedback or "position") for length in lengths], ignore_index=True)
     wall = time.perf_counter() - start
     by = ("duration", "effect", "noise") if len(lengths) > 1 else ("effect", "noise")
     table = summary(frame, by)
     print(f"cvxid bench --heldout: seeds {args.seeds or '1000:1010'}, {args.mode} mode, "
+          f"{'the paper feedback b x(t - tau) + b1 x' + chr(39) + '(t - tau), ' if args.feedback == 'paper' else ''}"
           f"{', '.join(f'{k} {v}' for k, v in fit.items()) + ', ' if fit else ''}"
           f"{len(frame)} systems in {wall:.0f} s ({args.jobs} jobs)")
     print(table.to_string(float_format=lambda v: f"{v:.3g}"))
@@ -346,6 +347,9 @@ def main(argv=None) -> int:
                          help="the specs' [fit] prune: selected terms pruned by simulation error (--heldout; default: "
                               "the documented default)")
     p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
+    p_bench.add_argument("--feedback", choices=("position", "paper"), default=None,
+                         help="the drawn loop feeds back the position (default), or the paper's position and velocity, "
+                              "b x(t - tau) + b1 x'(t - tau), identified with signal = [\"x\", \"x'\"] (--heldout)")
     p_bench.add_argument("--keep", default=None, help="keep each system's data, spec and result.json here (--heldout)")
     p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")
     p_bench.add_argument("--long", default=None,

@@ -526,7 +526,7 @@ def _net_damping(model, damping: float) -> float:
         return damping
     system = model.system()
     gain, tau = float(system.gain), float(model.tau or 0.0)
-    return damping + gain * tau if delay.derivative == 0 else damping - gain
+    return damping + gain * tau - float(system.rate_gain) if delay.derivative == 0 else damping - gain
 
 
 def _warn_undetermined(polish) -> None:

@@ -351,7 +351,8 @@ def starting_spec(data: Path, columns: Columns, test: Path | None, spec_folder: 
         'add your own, e.g. "sin(theta)"',
         "",
         "[model.delay]                        # a delayed feedback b x(t - tau); remove this table if there is none",
-        f'signal = "{coordinate}"',
+        f'signal = "{coordinate}"                         # or ["{coordinate}", "{coordinate}\'"]: position and velocity fed '
+        'back (b0, b1)',
         'method = "exact"',
         f"tau_max = {tau_max:g}                       # the longest delay searched (s): an eighth of the period of",
         "#                                    # the output's median frequency, at least 0.5 s, at most a tenth of the record",

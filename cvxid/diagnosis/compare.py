@@ -173,8 +173,10 @@ def k_step_predictions(system: IdentifiedSystem, experiment: Experiment, k: int)
     numeric = system.system()
     d = numeric.delayed
     feedback = measured_delayed(numeric.tau, numeric.history, numeric.derivative, t, smooth[d], vel[d])
+    rate = measured_delayed(numeric.tau, numeric.history, 1, t, smooth[d], vel[d])  # (the paper's x'(t - tau))
     first = int(np.argmax(np.isfinite(feedback)))  # a measured history: predictions start where it is known
-    splines = [CubicSpline(t[first:], (m.spec.received_input(experiment) + eq.delay_gain * feedback)[first:])
+    splines = [CubicSpline(t[first:], (m.spec.received_input(experiment) + eq.delay_gain * feedback
+                                       + (eq.delay_rate_gain * rate if eq.delay_rate_gain else 0.0))[first:])
                for m, eq in zip(system.models.values(), numeric.equations)]
     starts = np.arange(first, len(t) - 1, k)
     local = t[: k + 1] - t[0]
@@ -205,7 +207,8 @@ def measured_delayed(tau: float, history: str, derivative: int, t: np.ndarray, x
     the record NaN (``history = "measured"``: unknown), zero, or the first sample
     (``"initial"``)."""
     lagged = np.interp(t - tau, t, x if derivative == 0 else v)
-    lagged[t - t[0] < tau - 1e-9 * (t[1] - t[0])] = {"measured": np.nan, "zero": 0.0}.get(history, x[0])
+    held = x[0] if derivative == 0 else 0.0  # ("initial": the position held, so no velocity)
+    lagged[t - t[0] < tau - 1e-9 * (t[1] - t[0])] = {"measured": np.nan, "zero": 0.0}.get(history, held)
     return lagged
 
 

@@ -129,7 +129,10 @@ def _residuals(system: IdentifiedSystem, equation: str, experiment: Experiment) 
 
 
 def _measured_feedback(system, t: np.ndarray, x: np.ndarray, v: np.ndarray) -> np.ndarray:
-    r"""The delayed feedback :math:`b\,x^{(q)}(t-\tau)` read from (smoothed) measurements."""
-    if not system.gain:
-        return np.zeros_like(t)
-    return system.gain * measured_delayed(system.tau, system.history, system.derivative, t, x, v)
+    r"""The delayed feedback :math:`b\,x^{(q)}(t-\tau)` (with the rate, :math:`+\,b_1\dot x(t-\tau)`)
+    read from (smoothed) measurements."""
+    out = np.zeros_like(t)
+    for gain, order in ((system.gain, system.derivative), (system.rate_gain, system.derivative + 1)):
+        if gain:
+            out = out + gain * measured_delayed(system.tau, system.history, order, t, x, v)
+    return out

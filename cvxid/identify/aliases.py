@@ -68,8 +68,8 @@ def with_gain_sign(system: IdentifiedSystem, sign: int) -> IdentifiedSystem:
     models = {}
     for label, model in system.models.items():
         coefficients = dict(model.coefficients)
-        delayed = model.spec.delayed_term.name if model.spec.delay is not None else None
-        if delayed in coefficients:
-            coefficients[delayed] = sign * coefficients[delayed]
+        for term in model.spec.delayed_terms if model.spec.delay is not None else ():
+            if term.name in coefficients:
+                coefficients[term.name] = sign * coefficients[term.name]
         models[label] = IdentifiedModel(model.spec, coefficients, model.lam, dict(model.info), model.tau)
     return replace(system, models=models)

@@ -1170,12 +1170,12 @@ class _Problem:
         self.every = not isinstance(step, Step)  # every sample compared (else the steps' own)
         self.systems = {label: m.system() for label, m in system.models.items()}
         self.coordinates = system.coordinates
-        gains = [float(s.gain) for s in self.systems.values()]
+        gains = [float(g) for s in self.systems.values() for g in (s.gain, s.rate_gain)]
         delay = next(iter(system.specs.values())).delay
         self.delay = delay if delay is not None and any(gains) else None
         self.fixed_tau = fixed_tau if self.delay is not None else None
         history = next(iter(self.systems.values())).history
-        past = None if self.delay is None else (self.delay.tau_max, self.delay.coordinate, self.delay.derivative,
+        past = None if self.delay is None else (self.delay.tau_max, self.delay.coordinate, self.delay.orders,
                                                 self.delay.history)
         self.starts, self.pasts = zip(*(remembered(e, ("start", past, history),
                                                    lambda e=e: simulation_start(e, self.delay, history))
@@ -1211,7 +1211,8 @@ class _Problem:
             for term in s.terms:
                 columns[system.column(label, term.name)] = self._name(label, spec.parameter_name(term.name), term.name)
             if self.delay is not None and spec.delay.gain is None:
-                columns[system.column(label, spec.delayed_term.name)] = self._name(label, "gain", "gain")
+                for name, term in zip(spec.gain_names, spec.delayed_terms):
+                    columns[system.column(label, term.name)] = self._name(label, name, name)
         self.tied = _rooted({columns[a]: (columns[b], f) for a, b, f in system.ties
                              if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)})
         for label, model in system.models.items():
@@ -1229,7 +1230,8 @@ class _Problem:
                 natural.append(force / remembered(experiments[0], ("size", term, tuple(self.coordinates), self.starts[0]),
                                                   lambda term=term: typical_size(term.evaluate(typical))))
             if self.delay is not None and spec.delay.gain is None:
-                gains.append((label, self._name(label, "gain", "gain"), force / typical_size(typical[self.delay.coordinate])))
+                for name, signal in zip(spec.gain_names, (self.delay.coordinate, velocity_symbol(self.delay.coordinate))):
+                    gains.append((label, name, self._name(label, name, name), force / typical_size(typical[signal])))
         if self.delay is not None and self.fixed_tau is None:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
@@ -1245,9 +1247,9 @@ class _Problem:
         self.input_splines = [[CubicSpline(e.time, e.input(m.spec.input)) for m in system.models.values()]
                               for e in experiments] if self.input_delay is not None else None
         if self.delay is not None:
-            for label, name, scale in gains:  # (a coupled equation's given gain has none: one given, one free)
+            for label, gain, name, scale in gains:  # (a coupled equation's given gain has none: one given, one free)
                 names.append(name)
-                start.append(float(self.systems[label].gain))
+                start.append(float(getattr(self.systems[label], gain)))
                 lower.append(-np.inf)
                 natural.append(scale)
         for i, e in enumerate(experiments):
@@ -1317,7 +1319,8 @@ class _Problem:
     def residuals(self, thetas: np.ndarray) -> np.ndarray:
         values = self._values(thetas)
         C, B = len(self.coordinates), thetas.shape[0]
-        mass, gain, coefs, terms = np.ones((C, B)), np.zeros((C, B)), [], []
+        signals = len(self.delay.orders) if self.delay is not None else 1
+        mass, gain, coefs, terms = np.ones((C, B)), np.zeros((signals, C, B)), [], []
         for i, (label, model) in enumerate(self.base.models.items()):
             spec, s = model.spec, self.systems[label]
             mass[i] = np.maximum(values[self._name(label, "m", spec.inertia_term.name)], TINY) if spec.inertia \
@@ -1325,7 +1328,8 @@ class _Problem:
             coefs += [values[self._name(label, spec.parameter_name(t.name), t.name)] for t in s.terms]
             terms.append(tuple(s.terms))
             if self.delay is not None:
-                gain[i] = values[self._name(label, "gain", "gain")] if spec.delay.gain is None else s.gain
+                for q, name in enumerate(spec.gain_names):
+                    gain[q, i] = values[self._name(label, name, name)] if spec.delay.gain is None else getattr(s, name)
         coefs = np.array(coefs, float).reshape(-1, B)
         tau = np.maximum(values["tau"], 0.0) if self.delay is not None else np.zeros(B)
         any_system = next(iter(self.systems.values()))
@@ -1395,7 +1399,7 @@ class _Problem:
             if self.delay is not None:
                 params["tau"] = values["tau"]
                 if spec.delay.gain is None:
-                    params["gain"] = values[self._name(label, "gain", "gain")]
+                    params.update({name: values[self._name(label, name, name)] for name in spec.gain_names})
             models[label] = _updated(model, s, params)
             if "tau_u" in values and spec.input_delay is not None:
                 models[label] = replace(models[label], spec=spec.with_input_tau(values["tau_u"]))
@@ -1414,8 +1418,9 @@ def _updated(model: IdentifiedModel, system, params: dict) -> IdentifiedModel:
     if spec.inertia:
         coefs[spec.inertia_term.name] = params["m"]
     tau = params.get("tau", model.tau)
-    if "gain" in params:
-        coefs[spec.delayed_term.name] = -params["gain"]
+    for name, term in zip(spec.gain_names, spec.delayed_terms if spec.delay is not None else ()):
+        if name in params:
+            coefs[term.name] = -params[name]
     if spec.delay is not None and not spec.delay.exact:
         for t in spec.delay.taylor_terms():
             if t.name in coefs:

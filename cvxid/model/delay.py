@@ -1,5 +1,7 @@
 r"""Delayed feedback :math:`+\,b\, x^{(q)}(t-\tau)` on the right-hand side, and its Taylor form.
 
+The position may be fed back with its rate, the paper's form
+:math:`b_0\,x(t-\tau) + b_1\,\dot x(t-\tau)` (``rate``: two signals, one delay).
 Moved to the left-hand side and expanded to order :math:`r`,
 
 .. math::
@@ -7,7 +9,8 @@ Moved to the left-hand side and expanded to order :math:`r`,
     -b\, x^{(q)}(t-\tau) \approx -b \sum_{j=0}^{r} \frac{(-\tau)^j}{j!}\, x^{(q+j)}(t),
 
 so the column of :math:`x^{(q+j)}` carries the coefficient
-:math:`a_{q+j} = p_{q+j} - b(-\tau)^j/j!`, where :math:`p_{q+j}` is the physical coefficient
+:math:`a_{q+j} = p_{q+j} - b(-\tau)^j/j!` (with the rate, plus
+:math:`-b_1(-\tau)^{j-1}/(j-1)!`), where :math:`p_{q+j}` is the physical coefficient
 of the same derivative (stiffness :math:`k_1` for order 0, damping :math:`c_1` for 1, mass
 :math:`m` for 2, none above).  Columns with no physical coefficient ("pure delay" columns)
 determine :math:`\tau`; the others then give the physical coefficients back.
@@ -53,10 +56,14 @@ class DelayedFeedback:
         The fed-back coordinate.
     derivative : int
         0 for :math:`x(t-\\tau)`, 1 for :math:`\\dot x(t-\\tau)`.
-    gain : float
-        The known feedback gain :math:`b` (right-hand side ``+ gain * x(t - tau)``).
+    gain : float or pair of floats, optional
+        The known feedback gain :math:`b` (right-hand side ``+ gain * x(t - tau)``); with
+        ``rate``, the pair :math:`(b_0, b_1)`; None: estimated (``method = "exact"``).
     taylor_order : int
         Order :math:`r` of the Taylor expansion.
+    rate : bool
+        The position's rate is fed back too, at the same delay (:math:`b_0 x(t-\\tau) +
+        b_1 \\dot x(t-\\tau)`; ``derivative`` must be 0).
     """
 
     coordinate: str = "x"
@@ -67,8 +74,23 @@ class DelayedFeedback:
     tau_max: float = 0.5
     tau_min: float = 0.0
     history: str = "measured"
+    rate: bool = False
 
     def __post_init__(self):
+        if self.rate and self.derivative != 0:
+            raise CvxidError(
+                "[model.delay] signal lists a velocity and its rate: only a position and its velocity can be fed "
+                "back together (signal = [\"x\", \"x'\"], the paper's b0 x(t - tau) + b1 x'(t - tau))")
+        if isinstance(self.gain, (tuple, list)):
+            if not self.rate or len(self.gain) != 2:
+                raise CvxidError(
+                    f"[model.delay] gain gives {len(self.gain)} gains for {len(self.orders)} fed-back signal(s): one "
+                    "gain for each signal, in the order of signal")
+            object.__setattr__(self, "gain", tuple(float(g) for g in self.gain))
+        elif self.rate and self.gain is not None:
+            raise CvxidError(
+                "[model.delay] gain is one number for two fed-back signals: give one gain for each, in the order of "
+                "signal (gain = [b0, b1]), or leave gain out with method = 'exact' to estimate both")
         if self.derivative not in (0, 1):
             raise CvxidError(
                 f"[model.delay] signal must be the position or the velocity of a coordinate "
@@ -83,8 +105,8 @@ class DelayedFeedback:
                 "[model.delay] gain is required with method = 'taylor' (a known feedback gain, "
                 "e.g. gain = 2.0); with method = 'exact' it may be left out and is estimated"
             )
-        if self.gain is not None and (not np.isfinite(self.gain) or self.gain == 0):
-            raise CvxidError(f"[model.delay] gain must be a finite non-zero number, got {self.gain}")
+        if self.gains is not None and (not np.all(np.isfinite(self.gains)) or not np.any(self.gains)):
+            raise CvxidError(f"[model.delay] gain must be a finite non-zero number (or pair), got {self.gain}")
         if self.taylor_order < 1:
             raise CvxidError(
                 f"[model.delay] taylor_order must be at least 1, got {self.taylor_order}"
@@ -110,26 +132,61 @@ class DelayedFeedback:
         return "bottom" if tau <= self.tau_min + max(share, END_SAMPLES * dt) else None
 
     @property
+    def orders(self) -> tuple[int, ...]:
+        """The fed-back signals' derivative orders: ``(q,)``, or ``(0, 1)`` with the rate."""
+        return (self.derivative, self.derivative + 1) if self.rate else (self.derivative,)
+
+    @property
+    def gains(self) -> tuple[float, ...] | None:
+        """The known gains, one per fed-back signal (in :attr:`orders`), or None (estimated)."""
+        if self.gain is None:
+            return None
+        return tuple(self.gain) if self.rate else (float(self.gain),)
+
+    @property
+    def signals(self) -> tuple[str, ...]:
+        """The fed-back signals as written (``"x"``, ``"x'"``)."""
+        return tuple(self.coordinate + "'" * q for q in self.orders)
+
+    @property
     def signal(self) -> str:
-        return self.coordinate + "'" * self.derivative
+        """The fed-back signals as written, joined (``"x"``, or ``"x, x'"`` with the rate)."""
+        return ", ".join(self.signals)
+
+    def feedback_text(self, gains, tau: str = "tau", digits: int = 6) -> str:
+        """The right-hand side's feedback, ``" + 2 x(t - tau) - 0.3 x'(t - tau)"``: ``gains``
+        one per signal (numbers, or names such as ``"b"``)."""
+        out = ""
+        for signal, gain in zip(self.signals, gains):
+            if isinstance(gain, str):
+                out += f" + {gain} {signal}(t - {tau})"
+            else:
+                out += f" {'-' if gain < 0 else '+'} {abs(gain):.{digits}g} {signal}(t - {tau})"
+        return out
 
     @property
     def highest_order(self) -> int:
         """Highest time derivative of the coordinate that the delay's columns contain."""
-        return self.derivative + (0 if self.exact else self.taylor_order)
+        return self.orders[-1] + (0 if self.exact else self.taylor_order)
 
     def taylor_terms(self) -> list[Derivative]:
-        """The columns :math:`x^{(q+j)}`, :math:`j = 0..r` (none for the exact delay)."""
+        """The columns :math:`x^{(q+j)}`, :math:`j = 0..r` (with the rate, up to
+        :math:`r + 1`; none for the exact delay)."""
         if self.exact:
             return []
-        return [Derivative(self.coordinate, self.derivative + j) for j in range(self.taylor_order + 1)]
+        return [Derivative(self.coordinate, order) for order in range(self.derivative, self.highest_order + 1)]
 
     def contribution(self, order: int, tau: float) -> float:
-        """The delay's share :math:`-b(-\\tau)^j/j!` of the coefficient of :math:`x^{(order)}`."""
-        j = order - self.derivative
-        if j < 0 or j > self.taylor_order:
-            return 0.0
-        return -self.gain * (-tau) ** j / factorial(j)
+        """The delay's share :math:`-\\sum_s b_s(-\\tau)^j/j!` of the coefficient of
+        :math:`x^{(order)}`, :math:`j` = order minus the order of signal :math:`s` (each
+        signal expanded up to the same derivative, :attr:`highest_order`: with the rate the
+        position's to order :math:`r + 1`)."""
+        share = 0.0
+        for q, gain in zip(self.orders, self.gains):
+            j = order - q
+            if 0 <= order <= self.highest_order and j >= 0:
+                share -= gain * (-tau) ** j / factorial(j)
+        return share
 
     def estimate_tau(self, pure: dict[int, float], weights: dict[int, float] | None = None) -> float:
         """:math:`\\tau` from the coefficients of the pure-delay columns (order → value).
@@ -146,6 +203,9 @@ class DelayedFeedback:
         weights = weights or {k: 1.0 for k in pure}
         guesses = []
         for order, a in pure.items():
+            if self.rate:  # each column's share is a polynomial in tau: its positive roots
+                guesses += [r.real for r in self._share_polynomial(order, a).roots() if abs(r.imag) < 1e-9 * abs(r)]
+                continue
             j = order - self.derivative
             base = -a * factorial(j) / self.gain  # = (-tau)^j
             if j % 2:
@@ -171,3 +231,13 @@ class DelayedFeedback:
             key=lambda r: r.cost,
         )
         return float(best.x[0])
+
+    def _share_polynomial(self, order: int, value: float) -> np.polynomial.Polynomial:
+        """The delay's share of column ``order`` minus ``value``, as a polynomial in tau."""
+        coefs = np.zeros(self.highest_order + 1)
+        coefs[0] = -value
+        for q, gain in zip(self.orders, self.gains):
+            j = order - q
+            if 0 <= order <= self.highest_order and j >= 0:
+                coefs[j] -= gain * (-1.0) ** j / factorial(j)
+        return np.polynomial.Polynomial(coefs)

@@ -3,6 +3,7 @@ r"""The model being identified: :class:`ModelSpec`.
 .. math::
 
     m\,\ddot x + \sum_i c_i\, g_i(x, \dot x) = f(t) + b\, x^{(q)}(t - \tau)
+    \quad\text{or}\quad f(t) + b_0\, x(t - \tau) + b_1\, \dot x(t - \tau)
 
 A spec says which coordinate and input, whether the inertia :math:`m` is identified (or
 known), the library of candidate terms :math:`g_i`, the delayed feedback, the named sign
@@ -23,6 +24,8 @@ from cvxid.model.library import Effect, Library
 from cvxid.model.terms import DELAYED, DelayedSignal, Derivative, Term, parse_term
 
 INERTIA, DELAY, LIBRARY, LISTED, LINEAR = "inertia", "delay", "library", "listed", "linear"
+GAIN_NAMES = ("gain", "rate_gain")
+"""The physical names of the feedback gains: the fed-back signal's, and its rate's."""
 
 
 @dataclass(frozen=True)
@@ -140,7 +143,7 @@ class ModelSpec:
         and their coefficients run away together)."""
         cols: dict[str, Column] = {}
         delay_names = {t.name for t in self.delay.taylor_terms()} if self.delay else set()
-        linear = [t for t in self.linear_terms if t != self.confounded_signal] if self.keep_linear else ()
+        linear = [t for t in self.linear_terms if t not in self.confounded_signals] if self.keep_linear else ()
         if self.inertia:
             cols[self.inertia_term.name] = Column(self.inertia_term, INERTIA)
         for term in self.library:
@@ -151,8 +154,8 @@ class ModelSpec:
             for term in self.delay.taylor_terms():
                 cols.setdefault(term.name, Column(term, DELAY))
             if self.delay.exact and self.delay.gain is None:
-                term = self.delayed_term
-                cols[term.name] = Column(term, DELAY)
+                for term in self.delayed_terms:
+                    cols[term.name] = Column(term, DELAY)
         return list(cols.values())
 
     @property
@@ -179,19 +182,32 @@ class ModelSpec:
         return replace(self, input_delay=self.input_delay.at(value))
 
     @property
-    def confounded_signal(self) -> str | None:
-        r"""The fed-back signal (``x``) when its gain is estimated and it is a library
-        column too: at :math:`\tau = 0` the two are one column, and for a short delay nearly
-        so.  None otherwise."""
+    def confounded_signals(self) -> tuple[str, ...]:
+        r"""The fed-back signals (``x``; with the rate ``x'`` too) whose gains are estimated
+        and that are library columns too: at :math:`\tau = 0` each and its delayed column are
+        one column, and for a short delay nearly so."""
         if self.delay is None or self.delay.gain is not None:
-            return None
-        signal = self.delay.coordinate + "'" * self.delay.derivative
-        return signal if signal in self.library.names else None
+            return ()
+        return tuple(s for s in self.delay.signals if s in self.library.names)
+
+    @property
+    def confounded_signal(self) -> str | None:
+        """The first fed-back signal (``x``) when it is confounded
+        (:attr:`confounded_signals`), else None."""
+        signal = self.delay.signals[0] if self.delay is not None else None
+        return signal if signal in self.confounded_signals else None
 
     @property
     def delayed_term(self) -> DelayedSignal:
-        """The exact delayed signal (its column carries minus the unknown gain)."""
-        return DelayedSignal(self.delay.coordinate, self.delay.derivative)
+        """The exact delayed signal (its column carries minus the unknown gain); with the
+        rate, the position's."""
+        return self.delayed_terms[0]
+
+    @property
+    def delayed_terms(self) -> tuple[DelayedSignal, ...]:
+        """The exact delayed signals, one per fed-back signal (each column carries minus its
+        unknown gain)."""
+        return tuple(DelayedSignal(self.delay.coordinate, q) for q in self.delay.orders)
 
     @property
     def column_names(self) -> list[str]:
@@ -234,9 +250,9 @@ class ModelSpec:
 
     def physical_terms(
         self, coefficients: Mapping[str, float], tau: float | None = None
-    ) -> tuple[float, dict[str, float], float | None, float | None]:
-        """Mass, each library term's own coefficient, the delay and the feedback gain, from
-        regression coefficients (column name → value).
+    ) -> tuple[float, dict[str, float], float | None, tuple[float, ...] | None]:
+        """Mass, each library term's own coefficient, the delay and the feedback gains (one
+        per fed-back signal), from regression coefficients (column name → value).
 
         With a Taylor delay, tau comes from the pure-delay columns and the delay's share is
         removed from the columns it shares with physics.  With the exact delay, ``tau`` is
@@ -244,7 +260,7 @@ class ModelSpec:
         coefficient.
         """
         coefs = dict(coefficients)
-        gain = self.delay.gain if self.delay else None
+        gain = self.delay.gains if self.delay else None
         if self.delay and not self.delay.exact:
             physical_orders = {self._derivative_order(n) for n in self.library.names}
             if self.inertia:
@@ -262,7 +278,7 @@ class ModelSpec:
             if tau is None:
                 raise CvxidError("an exact-delay model needs the delay tau it was fitted for")
             if gain is None:
-                gain = -coefs.get(self.delayed_term.name, 0.0)
+                gain = tuple(-coefs.get(t.name, 0.0) for t in self.delayed_terms)
         mass = coefs.get(self.inertia_term.name, 0.0) if self.inertia else self.mass
         return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau, gain
 
@@ -295,17 +311,23 @@ class ModelSpec:
         if tau is not None:
             out["tau"] = tau
         if self.delay and self.delay.gain is None:
-            out["gain"] = gain
+            out.update(zip(self.gain_names, gain))
         if self.input_delay is not None:
             out["tau_u"] = self.input_delay.value
         return out
+
+    @property
+    def gain_names(self) -> tuple[str, ...]:
+        """The physical names of the feedback gains: ``gain``; with the rate, ``gain`` and
+        ``rate_gain`` (:math:`b_0`, :math:`b_1`)."""
+        return GAIN_NAMES[:len(self.delay.orders)] if self.delay else ()
 
     def __repr__(self) -> str:
         lhs = ("m " if self.inertia else f"{self.mass:g} ") + f"{self.coordinate}''"
         rhs = self.input + ("(t - tau_u)" if self.input_delay is not None else "")
         if self.delay:
-            gain = "b" if self.delay.gain is None else f"{self.delay.gain:g}"
-            rhs += f" + {gain} {self.delay.signal}(t - tau)"
+            unknown = ("b0", "b1") if self.delay.rate else ("b",)
+            rhs += self.delay.feedback_text(self.delay.gains or unknown)
         lines = [
             f"ModelSpec: {lhs} + sum_i c_i g_i = {rhs}",
             f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",

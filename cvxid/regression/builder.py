@@ -296,7 +296,8 @@ class RegressionBuilder:
         for block in self.blocks:
             p = self._target(block, model)
             if exact and model.delay.gain is not None:
-                p = p + model.delay.gain * self._delayed(block, tau, model.delay.derivative)
+                for q, gain in zip(model.delay.orders, model.delay.gains):
+                    p = p + gain * self._delayed(block, tau, q)
             Ps.append(np.column_stack([
                 self._delayed(block, tau, c.term.derivative) if isinstance(c.term, DelayedSignal)
                 else self._input_rate(block, model) if isinstance(c.term, InputRate)

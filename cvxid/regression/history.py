@@ -55,23 +55,24 @@ SPLINE_MARGIN = 64
 spline's dependence on far samples decays by about 0.27 a sample)."""
 
 
-def measured_past(experiment: Experiment, coordinate: str, derivative: int = 0, until: int | None = None) -> Past:
-    """The fed-back signal (``derivative`` 0: position, 1: velocity) and its slope at any
-    time inside ``experiment`` (up to sample ``until``, when given): the smoothed
-    measurement, by a cubic spline."""
+def measured_past(experiment: Experiment, coordinate: str, orders: tuple[int, ...] = (0,),
+                  until: int | None = None) -> Past:
+    """The fed-back signals (their derivative ``orders``, 0: position, 1: velocity) and their
+    slopes ``(len(orders), n)`` at any time inside ``experiment`` (up to sample ``until``,
+    when given): the smoothed measurement, by a cubic spline."""
     y = experiment.output(coordinate)
     w = savgol_window(y)
     n = y.size if until is None else min(y.size, until + w + SPLINE_MARGIN)
     # (w < n: the window is shorter than a quarter of the record, and the stretch is w longer)
     spline = CubicSpline(experiment.time[:n], savgol_filter(y[:n], w, 3, mode="interp"))
-    return lambda times: (spline(times, derivative), spline(times, derivative + 1))
+    return lambda times: (np.array([spline(times, q) for q in orders]), np.array([spline(times, q + 1) for q in orders]))
 
 
 def simulation_start(experiment: Experiment, delay, history: str | None = None) -> tuple[int, Past | None]:
     """Where a simulation of ``experiment`` starts (:func:`start_index`) and the fed-back
     signal before it (:func:`measured_past`; None when it starts at the record's start)."""
     k = start_index(experiment, delay, history)
-    return k, (measured_past(experiment, delay.coordinate, delay.derivative, until=k) if k else None)
+    return k, (measured_past(experiment, delay.coordinate, delay.orders, until=k) if k else None)
 
 
 def padded(values: np.ndarray, start: int) -> np.ndarray:

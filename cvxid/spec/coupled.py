@@ -96,6 +96,10 @@ def _equations(model: Table) -> tuple[dict[str, ModelSpec], dict[str, tuple]]:
             raise CvxidError(f"spec: two [[model.equation]] tables have the coordinate '{coord}'; each needs its own")
         coords.append(coord)
     delay = _table(model, "delay", "model", DELAY_KEYS, required=True)
+    if isinstance(delay.get("signal"), list):
+        raise CvxidError(f"spec: [model.delay] signal = {delay['signal']!r}: a coupled model feeds back one signal (a "
+                         "coordinate or its velocity); a position and its velocity together (the paper's b0 x(t - tau) "
+                         "+ b1 x'(t - tau)) are for a model of one equation")
     if _string(delay, "method", "model.delay", "exact") != "exact":
         raise CvxidError("spec: the shared delay of a coupled model is fitted exactly: [model.delay] method = \"exact\"")
     shared = _input_delay(model, "model") if "input_delay" in model else None  # the shared input's delay

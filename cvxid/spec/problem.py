@@ -685,14 +685,12 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     if "delay" in table:
         dw = f"{where}.delay"
         d = _table(table, "delay", where, {"signal", "gain", "taylor_order", "method", "tau_min", "tau_max", "history"})
-        signal = _string(d, "signal", dw, coord)
-        if signal.rstrip("'") not in coords or len(signal) - len(signal.rstrip("'")) > 1:
-            choices = " or ".join(f"'{c}' or \"{c}'\"" for c in coords)
-            raise CvxidError(f"spec: [{dw}] signal must be {choices}, got '{signal}'")
+        fed_back, derivative, rate, gain = _fed_back(d, dw, coords)
         delay = DelayedFeedback(
-            coordinate=signal.rstrip("'"),
-            derivative=len(signal) - len(signal.rstrip("'")),
-            gain=_number(d, "gain", dw) if "gain" in d else None,
+            coordinate=fed_back,
+            derivative=derivative,
+            rate=rate,
+            gain=gain,
             taylor_order=_number(d, "taylor_order", dw, 3, integer=True, within=(1, 7),
                                  fix="higher Taylor orders amplify the noise; use method = 'exact' instead"),
             method=_string(d, "method", dw, "taylor", choices=METHODS),
@@ -743,6 +741,41 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
         keep_linear=_bool(lib_t, "keep_linear", f"{where}.library", True),
         input_delay=input_delay,
     ), polynomial
+
+
+def _fed_back(d: Table, where: str, coords: tuple[str, ...]) -> tuple[str, int, bool, float | tuple | None]:
+    """A delay table's ``signal`` and ``gain``: (coordinate, derivative order, whether its
+    rate is fed back too, the gain(s) or None).  ``signal = "x"`` or ``"x'"`` with one gain;
+    ``signal = ["x", "x'"]`` (the paper's :math:`b_0 x(t-\\tau) + b_1 \\dot x(t-\\tau)`)
+    with ``gain = [b0, b1]``."""
+    written = d.get("signal", coords[0])
+    signals = written if isinstance(written, list) else [written]
+    choices = " or ".join(f"'{c}' or \"{c}'\"" for c in coords)
+    pairs = f"[\"{coords[0]}\", \"{coords[0]}'\"] (a position and its velocity, the paper's b0 x(t - tau) + b1 x'(t - tau))"
+    if not signals or len(signals) > 2 or not all(isinstance(s, str) for s in signals):
+        raise CvxidError(f"spec: [{where}] signal must be {choices}, or the pair {pairs}; got {written!r}")
+    for signal in signals:
+        if signal.strip().rstrip("'") not in coords or len(signal) - len(signal.rstrip("'")) > 1:
+            raise CvxidError(f"spec: [{where}] signal must be {choices}, or the pair {pairs}; got '{signal}'")
+    signals = [s.strip() for s in signals]
+    coordinate, derivative = signals[0].rstrip("'"), len(signals[0]) - len(signals[0].rstrip("'"))
+    rate = len(signals) == 2
+    if rate and signals != [coordinate, coordinate + "'"]:
+        raise CvxidError(f"spec: [{where}] signal = {written!r}: two fed-back signals are a position and its "
+                         f"velocity, in that order: {pairs}")
+    if "gain" not in d:
+        return coordinate, derivative, rate, None
+    if not rate:
+        if isinstance(d["gain"], list):
+            raise CvxidError(f"spec: [{where}] gain lists {len(d['gain'])} gains for one fed-back signal "
+                             f"('{signals[0]}'): give one number, or list the signals (signal = {pairs})")
+        return coordinate, derivative, rate, _number(d, "gain", where)
+    gains = d["gain"]
+    if not isinstance(gains, list) or len(gains) != 2:
+        raise CvxidError(f"spec: [{where}] gain must list one gain for each fed-back signal, in the order of signal "
+                         f"(gain = [b0, b1] for {signals}), got {gains!r}; leave gain out with method = 'exact' to "
+                         "estimate both")
+    return coordinate, derivative, rate, tuple(_number({"gain": g}, "gain", where) for g in gains)
 
 
 def _input_delay(table: Table, where: str) -> InputDelay:
@@ -919,19 +952,19 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         terms.append(resolve_term(name, (coord,)))
         values.append(_number(coefs_t, name, "truth.coefficients"))
     mass = _number(t, "mass", where, 1.0, positive=True)
-    gain = tau = 0.0
-    derivative = 0
+    gains, tau, derivative = (0.0, 0.0), 0.0, 0
     if "delay" in t:
         d = _table(t, "delay", where, {"signal", "gain", "tau"})
-        signal = _string(d, "signal", "truth.delay", coord)
-        derivative = len(signal) - len(coord)
-        gain = _number(d, "gain", "truth.delay")
+        if "gain" not in d:
+            raise CvxidError("spec: [truth.delay] needs 'gain' (the true feedback gain, one for each signal)")
+        _, derivative, _, gain = _fed_back(d, "truth.delay", (coord,))
+        gains = (*np.atleast_1d(gain), 0.0)
         tau = _number(d, "tau", "truth.delay")
         if tau < 0:
             raise CvxidError(f"spec: [truth.delay] tau must be >= 0, got {tau}")
     history = _string(t, "history", where, "zero", choices=ASSUMED)
-    system = CoupledSystem((Equation(coord, mass, tuple(terms), tuple(values), 1.0, gain),), coord, tau, history,
-                           derivative)
+    system = CoupledSystem((Equation(coord, mass, tuple(terms), tuple(values), 1.0, float(gains[0]),
+                                     float(gains[1])),), coord, tau, history, derivative)
     physical = {"m": mass}
     for term, value in zip(terms, values):
         pname, sign = model.named_parameter(term.name)
@@ -939,7 +972,7 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
     if "delay" in t:
         physical["tau"] = tau
         if model.delay is not None and model.delay.gain is None:  # estimated: beside its estimate
-            physical["gain"] = gain
+            physical.update(zip(model.gain_names, map(float, gains)))
     input_delay = _number(t, "input_delay", where, 0.0, within=(0, 10.0), fix="the input's delay in seconds")
     if input_delay:
         physical["tau_u"] = input_delay

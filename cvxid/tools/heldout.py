@@ -22,7 +22,9 @@ The draw (all uniform unless said):
   damping ``c / (2 sqrt(k1 m))`` 0.008 to 0.5), cubic stiffness ``k3`` 0 (one system in
   three) or in [0, 3];
 * the delayed feedback ``+ b x(t - tau)``: ``|b|`` in [0.3, 0.5] ``k1`` with a random sign,
-  ``tau`` in :data:`TAU_RANGE`;
+  ``tau`` in :data:`TAU_RANGE`; with ``feedback = "paper"`` the paper's form
+  ``+ b x(t - tau) + b1 x'(t - tau)``, ``|b1|`` in :data:`RATE_SHARE` times ``c`` with a
+  random sign (from its own stream: the rest of the draw is the seed's);
 * the hidden effect (``coulomb``, ``quadratic_damping``, ``quadratic_stiffness``,
   ``offset`` or none): a force of :data:`EFFECT_SHARE` of the force scale ``k1 x_rms``;
   or ``input_delay``: the system receives ``f(t - tau_u)``, ``tau_u`` in
@@ -94,7 +96,7 @@ STRIBECK_SPEED = 0.3
 ``omega x_rms``: its breakaway force (twice the Coulomb level) decays as
 ``exp(-(x'/v_s)^2)``."""
 OUTSIDE = ("abs_stiffness", "smooth_friction")
-"""Hidden effects outside the diagnosis's catalogue, drawn only when asked for by name (the
+r"""Hidden effects outside the diagnosis's catalogue, drawn only when asked for by name (the
 default list is :data:`EFFECTS`): a stiffness :math:`k_a\,x|x|` of either sign (a spring
 that hardens or softens with the square of the stretch, as a gas spring or a magnetic
 bearing), and a friction :math:`F \tanh(\dot x / v_t)` that turns over smoothly at
@@ -107,6 +109,12 @@ SMOOTH_SPEED = 0.3
 ``omega x_rms``."""
 INPUT_DELAY_RANGE = (0.01, 0.05)
 """The input's delay ``tau_u`` (seconds) of the ``input_delay`` effect."""
+FEEDBACKS = ("position", "paper")
+"""What the drawn loop feeds back: the position, ``b x(t - tau)``, or the paper's position
+and velocity, ``b x(t - tau) + b1 x'(t - tau)``."""
+RATE_SHARE = (0.3, 0.7)
+"""The fed-back velocity's gain ``|b1|`` (feedback ``"paper"``) as a share of the damping
+``c``: a velocity feedback of the damping's size that leaves the loop stable."""
 EFFECT_SHARE = (0.1, 0.3)
 """The hidden effect's force as a share of the force scale ``k1 x_rms``."""
 NOISES = (0.001, 0.01, 0.02)
@@ -167,6 +175,7 @@ class Oscillator:
     test: Forcing
     attempt: int
     input_tau: float = 0.0  # the input's delay (the input_delay effect)
+    rate_gain: float = 0.0  # the fed-back velocity's gain (feedback "paper")
 
     @property
     def terms(self) -> list[str]:
@@ -177,11 +186,12 @@ class Oscillator:
         """Physical parameters as a run names them (``m``, term names, ``tau``, ``gain``,
         ``tau_u`` for a late input)."""
         late = {"tau_u": self.input_tau} if self.input_tau else {}
-        return {"m": self.mass, **dict(self.coefficients), "tau": self.tau, "gain": self.gain, **late}
+        rate = {"rate_gain": self.rate_gain} if self.rate_gain else {}
+        return {"m": self.mass, **dict(self.coefficients), "tau": self.tau, "gain": self.gain, **rate, **late}
 
     @property
     def system(self) -> System:
-        return _system(self.mass, self.coefficients, self.gain, self.tau)
+        return _system(self.mass, self.coefficients, self.gain, self.tau, self.rate_gain)
 
     def simulate(self, which: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Noise-free time (from 0), x, x' and f of the ``"train"`` or ``"test"`` record."""
@@ -197,9 +207,10 @@ class Oscillator:
                           {"f": f + self.noise * rng.standard_normal(t.size)}, name=which)
 
 
-def _system(mass: float, coefficients: tuple[tuple[str, float], ...], gain: float, tau: float) -> System:
+def _system(mass: float, coefficients: tuple[tuple[str, float], ...], gain: float, tau: float,
+            rate_gain: float = 0.0) -> System:
     return System(tuple(parse_term(n) for n, _ in coefficients), np.array([v for _, v in coefficients]), mass,
-                  gain=gain, tau=tau)
+                  gain=gain, tau=tau, rate_gain=rate_gain)
 
 
 def _record(system: System, forcing: Forcing, duration: float, input_tau: float = 0.0):
@@ -212,20 +223,24 @@ def _record(system: System, forcing: Forcing, duration: float, input_tau: float 
 
 
 def draw(seed: int, effect: str | None = None, noise: float | None = None,
-         duration: float | None = None) -> Oscillator:
+         duration: float | None = None, feedback: str = "position") -> Oscillator:
     """The seed's system with the hidden ``effect`` (None or ``"none"``: no hidden effect),
-    its noise level and record length drawn unless given (see the module docstring)."""
+    its noise level and record length drawn unless given, its position fed back (``feedback
+    = "paper"``: its velocity too; see the module docstring)."""
     effect = "none" if effect is None else effect
     if effect not in EFFECTS + OUTSIDE:
         raise CvxidError(f"unknown hidden effect '{effect}'; one of: {', '.join(EFFECTS + OUTSIDE)}")
+    if feedback not in FEEDBACKS:
+        raise CvxidError(f"unknown feedback '{feedback}'; one of: {', '.join(FEEDBACKS)}")
     for attempt in range(ATTEMPTS):
-        oscillator = _attempt(seed, attempt, effect, noise, duration)
+        oscillator = _attempt(seed, attempt, effect, noise, duration, feedback)
         if oscillator is not None:
             return oscillator
     raise CvxidError(f"seed {seed}: no stable system with effect '{effect}' in {ATTEMPTS} attempts")
 
 
-def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration: float | None):
+def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration: float | None,
+             feedback: str = "position"):
     rng = np.random.default_rng([seed, attempt])
     mass, k1, c = rng.uniform(0.5, 2.0), rng.uniform(2.0, 20.0), rng.uniform(0.1, 1.0)
     k3 = rng.uniform(0.0, 3.0) if rng.uniform() > 1 / 3 else 0.0
@@ -241,6 +256,10 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
     coefficients = {"x'": c, "x": k1, "x^3": k3}
     input_tau = float(np.random.default_rng([seed, attempt, 3]).uniform(*INPUT_DELAY_RANGE)) \
         if effect == "input_delay" else 0.0
+    rate_gain = 0.0
+    if feedback == "paper":
+        own = np.random.default_rng([seed, attempt, 4])
+        rate_gain = float(own.choice((-1.0, 1.0)) * own.uniform(*RATE_SHARE) * c)
     force, speed = share * k1 * target, omega * target  # (the hidden effect's force and speed scales)
     if effect == "stribeck":
         coefficients["sign(x')"] = force
@@ -255,7 +274,7 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
                 "offset": sign * force}[effect]
         coefficients[resolve_term(effect).name] = size
     coefficients = tuple((n, float(v)) for n, v in coefficients.items() if v != 0.0)
-    system = _system(mass, coefficients, gain, tau)
+    system = _system(mass, coefficients, gain, tau, rate_gain)
     if not _decays(system, target):
         return None
     forcings = []
@@ -265,7 +284,7 @@ def _attempt(seed: int, attempt: int, effect: str, noise: float | None, duration
             return None
         forcings.append(forcing)
     return Oscillator(seed, effect, float(mass), coefficients, float(gain), float(tau), noise, duration, *forcings,
-                      attempt, input_tau)
+                      attempt, input_tau, rate_gain)
 
 
 def _stribeck(speed: float) -> str:
@@ -345,10 +364,11 @@ def spec_text(oscillator: Oscillator, mode: str = "structure", known_gain: bool 
     o = oscillator
     library = {"order": 3, "extra": list(SELECTION_EXTRA)} if mode == "selection" else {"order": 3} \
         if mode == "selection_diagnosis" else {"terms": o.terms if mode == "structure" else list(BASE_TERMS)}
-    delay = {"signal": "x", "method": "exact"} | ({"gain": o.gain} if known_gain else {})
+    signal, gain = (["x", "x'"], [o.gain, o.rate_gain]) if o.rate_gain else ("x", o.gain)
+    delay = {"signal": signal, "method": "exact"} | ({"gain": gain} if known_gain else {})
     tables = {
         "truth": {"mass": o.mass, "coefficients": dict(o.coefficients),
-                  "delay": {"signal": "x", "gain": o.gain, "tau": o.tau}},
+                  "delay": {"signal": signal, "gain": gain, "tau": o.tau}},
         **{f"data.{which}": {"file": f"{which}.csv", "time": "t", "output": "x", "input": "f"}
            | ({"gaps": True} if which in gaps else {}) for which in ("train", "test")},
         "model.library": library,
@@ -406,11 +426,12 @@ def _error(estimate: float, truth: float) -> float:
     return 100.0 * (estimate / truth - 1.0)
 
 
-def _row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
+def result_row(result: dict, oscillator: Oscillator, known_gain: bool) -> dict:
     """The errors of one run's ``result.json`` content against the truth (a parameter the
     model lacks counts as 0)."""
     tau = result["tau"] or {}
-    truth = {k: v for k, v in oscillator.truth.items() if k not in ("tau", "tau_u") and not (k == "gain" and known_gain)}
+    truth = {k: v for k, v in oscillator.truth.items()
+             if k not in ("tau", "tau_u") and not (k in ("gain", "rate_gain") and known_gain)}
     errors = {f"err % {k}": _error(result["physical"].get(k, 0.0), v) for k, v in truth.items()}
     interval = tau.get("interval")
     bounds = (result.get("polish") or {}).get("intervals") or {}
@@ -532,7 +553,8 @@ def identify_drawn(oscillator: Oscillator, folder=None, mode: str = "structure",
 
 
 def run_one(seed: int, effect: str, noise: float | None = None, duration: float | None = None,
-            mode: str = "structure", known_gain: bool = False, keep=None, fit: dict | None = None) -> dict:
+            mode: str = "structure", known_gain: bool = False, keep=None, fit: dict | None = None,
+            feedback: str = "position") -> dict:
     """One system drawn, written and identified by :func:`cvxid.app.run.run`: its row of
     :func:`heldout`.  Never raises: a failure is a row with ``status = "failed"`` and the
     exception's type and message.  ``keep``: a folder that keeps each system's files and
@@ -541,7 +563,7 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
     with warnings.catch_warnings(), tempfile.TemporaryDirectory() as scratch:
         warnings.simplefilter("ignore")  # (the draw's too)
         try:
-            oscillator = draw(seed, effect, noise, duration)
+            oscillator = draw(seed, effect, noise, duration, feedback)
             row.update({"noise": oscillator.noise, "duration": oscillator.duration, "kind": oscillator.train.kind,
                         "true tau": oscillator.tau})
             name = f"{seed}_{oscillator.effect}_{oscillator.noise:g}_{oscillator.duration:.4g}s"
@@ -550,7 +572,7 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
             result = out.to_dict()
             if keep:
                 (folder / "result.json").write_text(json.dumps(plain(result), indent=2), encoding="utf-8")
-            row.update(_row(result, oscillator, known_gain))
+            row.update(result_row(result, oscillator, known_gain))
             if mode == "diagnosis":
                 row["start to final fall"] = _start_to_final(out)
             if mode == "structure":
@@ -563,7 +585,8 @@ def run_one(seed: int, effect: str, noise: float | None = None, duration: float 
 
 
 def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = None, mode: str = "structure",
-            n_jobs: int = 2, keep=None, known_gain: bool = False, fit: dict | None = None) -> pd.DataFrame:
+            n_jobs: int = 2, keep=None, known_gain: bool = False, fit: dict | None = None,
+            feedback: str = "position") -> pd.DataFrame:
     """Every (seed, effect, noise) drawn and identified, ``n_jobs`` at a time (joblib); one
     row per system.  A noise or ``duration`` of None is drawn.
 
@@ -574,12 +597,13 @@ def heldout(seeds, effects=EFFECTS, noises=(None,), duration: float | None = Non
     (of the run), status, error; in diagnosis mode also the first ranked effect, the effects added (by
     either stage), the first added and the error falls at its step (:func:`_falls`); in
     selection mode whether the true support was recovered, the terms missed and the spurious
-    ones.  ``fit``: ``[fit]`` settings for every spec (see :func:`spec_text`).
+    ones.  ``fit``: ``[fit]`` settings for every spec (see :func:`spec_text`); ``feedback``:
+    ``"paper"`` draws the paper's feedback of the position and the velocity (:func:`draw`).
     """
     if mode not in MODES:
         raise CvxidError(f"mode must be one of {', '.join(MODES)}, got '{mode}'")
     cases = [(s, e, n) for s in seeds for e in effects for n in noises]
-    jobs = (delayed(run_one)(s, e, n, duration, mode, known_gain, keep, fit) for s, e, n in cases)
+    jobs = (delayed(run_one)(s, e, n, duration, mode, known_gain, keep, fit, feedback) for s, e, n in cases)
     rows = list(progress(Parallel(n_jobs=n_jobs, return_as="generator")(jobs), desc="heldout", total=len(cases)))
     frame = pd.DataFrame(rows)
     middle = sorted(c for c in frame.columns if c.startswith("err % "))
