@@ -522,8 +522,9 @@ def system_physical(specs: dict[str, ModelSpec], coefficients: dict[str, dict[st
             if pname == term:
                 pname = f"{coord}:m" if term == spec.inertia_term.name else f"{coord}:{term}"
             out[pname] = sign * value
-        if spec.delay is not None and spec.delay.gain is None:
-            out.update({f"{coord}:{name}": value for name, value in zip(spec.gain_names, gain)})
+        if spec.delay is not None:
+            out.update({f"{coord}:{name}": value for name, value, free in zip(spec.gain_names, gain, spec.delay.estimated)
+                        if free})
     if tau is not None:
         out["tau"] = tau
     late = next(iter(specs.values())).input_delay  # (shared by every equation)

@@ -347,7 +347,8 @@ def _warn_delay_at_bound(out: RunResult) -> None:
             "another term stands in for it (for a short delay b x(t - tau) = b x - b tau x' + ..., a damping); the "
             "other parameters' standard errors hold at tau = 0 only. Give the delay a floor ([model.delay] tau_min) "
             "if the loop is known to be late, or a longer, richer record" + (
-                f". The gain is given ({delay.gain:g}): a given gain of the wrong sign or size also sends the delay "
+                f". The gain is given ({', '.join(f'{g:g}' for g in delay.gains)}): a given gain of the wrong sign or "
+                "size also sends the delay "
                 "to 0, the stiffness absorbing the feedback (at tau = 0 it is the column x itself); leave the gain "
                 "out of [model.delay] to estimate it and compare" if delay.gain is not None else ""))
     elif _spans_range(interval, delay) and not said:

@@ -175,7 +175,10 @@ def _parameter(specs: dict[str, ModelSpec], name: str) -> Candidate | None:
     if not (spec.delay is not None and spec.delay.exact):
         raise CvxidError("the 'delay' candidate needs a model with an exact delay ([model.delay] method = 'exact') "
                          "or one equation without a delay (to add one)")
-    return Candidate(name, DelayedSignal(spec.delay.coordinate, spec.delay.orders[-1] + 1), tuple(specs))
+    change = DelayedSignal(spec.delay.coordinate, spec.delay.derivative + 1)  # (a change of the delay, to first order)
+    if change.name in spec.column_names:  # (the paper's fed-back velocity, its gain estimated: the model has it)
+        return None
+    return Candidate(name, change, tuple(specs))
 
 
 def with_candidate(specs: Mapping[str, ModelSpec], candidate: Candidate) -> dict[str, ModelSpec]:

@@ -145,13 +145,12 @@ class _Given:
         return self.at(self.value)
 
 
-def _freed(system: IdentifiedSystem, label: str, spec, column: str, sign: float = 1.0, held: dict | None = None):
+def _freed(system: IdentifiedSystem, label: str, spec, column: str, sign: float = 1.0):
     """The function of a value giving ``system`` with ``label``'s equation read by
-    ``spec`` and its coefficient ``column`` set to ``sign`` times the value (and the
-    columns ``held`` to their values)."""
+    ``spec`` and its coefficient ``column`` set to ``sign`` times the value."""
     model = system.models[label]
     return lambda value: replace(system, models={**system.models, label: IdentifiedModel(
-        spec, {**model.coefficients, **(held or {}), column: sign * value}, model.lam, dict(model.info), model.tau)})
+        spec, {**model.coefficients, column: sign * value}, model.lam, dict(model.info), model.tau)})
 
 
 def _given_values(system: IdentifiedSystem) -> Iterator[_Given]:
@@ -173,17 +172,18 @@ def _given_values(system: IdentifiedSystem) -> Iterator[_Given]:
         delay = spec.delay
         if delay is None or delay.gain is None:
             continue
-        free = replace(spec, delay=replace(delay, gain=None)) if delay.exact else None  # (the paper's two: together)
-        held = {t.name: -g for t, g in zip(spec.delayed_terms, delay.gains)}
-        for gain, term, value, signal in zip(spec.gain_names, spec.delayed_terms, delay.gains, delay.signals):
-            if value == 0:  # (a gain of 0: listed, nothing to move)
+        for q, (gain, term, value, signal) in enumerate(zip(spec.gain_names, spec.delayed_terms, delay.gains,
+                                                          delay.signals)):
+            if not value:  # (a gain of 0: listed, nothing to move; None: estimated)
                 continue
+            alone = tuple(None if i == q else g for i, g in enumerate(delay.gains)) if delay.rate else None
+            free = replace(spec, delay=replace(delay, gain=alone)) if delay.exact else None  # (the other still given)
             what = f"{label}'s feedback gain" if several else "the feedback gain"
             yield _Given(GivenCheck(name(label, gain, gain), "gain", what + (f" of {signal}" if delay.rate else ""),
                                     value, fix="to estimate it: leave out " + (
                                         f"{label}'s delay_gain" if several else "[model.delay] gain") + (
                                         " (both gains are then estimated)" if delay.rate else "")),
-                         value, _freed(system, label, free, term.name, -1.0, held) if delay.exact else None)
+                         value, _freed(system, label, free, term.name, -1.0) if delay.exact else None)
     for tie in system.ties:
         left, right, factor = tie
         label, column = (next(iter(system.models)), left) if not several else left.split(":", 1)

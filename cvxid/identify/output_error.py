@@ -474,7 +474,7 @@ def _profile_fit(origin: IdentifiedSystem, tau: float, experiments, states, step
         if not np.isfinite(fit.rms_after) and any(estimated_gain(m) for m in origin.models.values()):
             fit = output_error(without_cancelling_gain(with_tau(origin, tau), every=True), experiments, None,
                                step=step, max_iterations=PROFILE_ITERATIONS, fixed_tau=tau)
-        elif any(cancelling_gain(m) is not None for m in fit.system.models.values()):
+        elif any(_cancelling(m) for m in fit.system.models.values()):
             # a gain that cancels its signal's coefficient holds the walk in that valley: its net model with a
             # small gain is tried as well, and the better fit kept (a tenth outside check's 50 Hz record, the
             # gain free: every fit of the walk at k -245, gain -250, while from the truth's side the
@@ -518,7 +518,8 @@ def _delay_profile(system: IdentifiedSystem, experiments, initial, step: float |
     the delay free (:func:`_basin_fits`), then on a finer grid around the best.
     Empty without a fed-back delay."""
     delay = next(iter(system.specs.values())).delay
-    if delay is None or not any(float(m.system().gain) for m in system.models.values()):
+    numeric = [m.system() for m in system.models.values()]
+    if delay is None or not any(float(s.gain) or float(s.rate_gain) for s in numeric):
         return {}
     taus = np.linspace(delay.tau_min, delay.tau_max, _grid(system, experiments, grid))
     grid = taus.size
@@ -818,51 +819,67 @@ SMALL_GAIN = 0.1
 """The feedback gain a cancelling fit restarts from, as a share of its net stiffness."""
 
 
+def estimated_gains(model: IdentifiedModel) -> list[tuple[str, str, float]]:
+    """(signal, its delayed column, the estimated gain) of each fed-back signal of
+    ``model`` whose gain is estimated and that is a library term too (the delayed column
+    carries minus the gain): the position, and with the paper's feedback its velocity."""
+    spec = model.spec
+    if spec.delay is None:
+        return []
+    return [(signal, term.name, -model.coefficients.get(term.name, 0.0))
+            for signal, term in zip(spec.delay.signals, spec.delayed_terms) if signal in spec.confounded_signals]
+
+
 def estimated_gain(model: IdentifiedModel) -> float | None:
-    """The estimated feedback gain of ``model`` when its own signal is a library term too
-    (the delayed column carries minus the gain), else None: no delay, a gain given, or a
-    fed-back signal that is no library term (whose gain then trades with no coefficient)."""
-    if model.spec.confounded_signal is None:
-        return None
-    return -model.coefficients.get(model.spec.delayed_term.name, 0.0)
+    """The first of :func:`estimated_gains` (None: no delay, the gains given, or no fed-back
+    signal that is a library term, whose gain then trades with no coefficient)."""
+    found = estimated_gains(model)
+    return found[0][2] if found else None
+
+
+def _cancelling(model: IdentifiedModel) -> list[tuple[str, str, float]]:
+    """The :func:`estimated_gains` of ``model`` that nearly cancel the coefficient of their
+    own signal (:data:`CANCELLING`)."""
+    out = []
+    for signal, column, gain in estimated_gains(model):
+        k = model.coefficients.get(signal, 0.0)
+        if abs(k - gain) < CANCELLING * max(abs(k), abs(gain)):
+            out.append((signal, column, gain))
+    return out
 
 
 def cancelling_gain(model: IdentifiedModel) -> float | None:
-    """The estimated feedback gain of ``model`` when it and the coefficient of its own
-    signal nearly cancel (:data:`CANCELLING`), else None."""
-    gain = estimated_gain(model)
-    if gain is None:
-        return None
-    k = model.coefficients.get(model.spec.confounded_signal, 0.0)
-    return gain if abs(k - gain) < CANCELLING * max(abs(k), abs(gain)) else None
+    """The estimated feedback gain of ``model``'s fed-back position when it and the
+    coefficient of its own signal nearly cancel (:data:`CANCELLING`), else None."""
+    return next((gain for signal, _, gain in _cancelling(model) if signal == model.spec.confounded_signal), None)
 
 
 def without_cancelling_gain(fitted: IdentifiedModel | IdentifiedSystem, every: bool = False) -> IdentifiedSystem:
-    r"""A start for the polish: each equation whose estimated gain and its signal's
-    coefficient cancel (:func:`cancelling_gain`) as its net model with a small feedback,
+    r"""A start for the polish: each estimated gain that cancels its signal's coefficient
+    (:func:`_cancelling`) as the net model with a small feedback,
 
     .. math:: (k - b + b_0)\,x + (c + (b - b_0)\,\tau)\,\dot x = \dots + b_0\,x(t - \tau),
               \qquad b_0 = \beta\,|k - b|\,\mathrm{sign}\,b,
 
     from :math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x` (:math:`\beta` =
-    :data:`SMALL_GAIN`); the delay profile's fits then size the gain at each delay.  Other
-    equations as they are; with ``every``, every equation whose gain is estimated (the
-    profile's restart where its neighbour's gain makes the simulation diverge)."""
+    :data:`SMALL_GAIN`; a fed-back velocity's gain likewise against the damping, its share
+    of the inertia :math:`b_1\tau`); the delay profile's fits then size the gain at each
+    delay.  The others as they are; with ``every``, every estimated gain (the profile's
+    restart where its neighbour's gain makes the simulation diverge)."""
     system = IdentifiedSystem.of(fitted)
     models = {}
     for label, model in system.models.items():
-        gain = estimated_gain(model) if every else cancelling_gain(model)
-        if gain is None:
-            models[label] = model
-            continue
-        spec, coefs, signal = model.spec, dict(model.coefficients), model.spec.confounded_signal
-        small = SMALL_GAIN * (abs(coefs[signal] - gain) or abs(gain)) * np.sign(gain)  # (never 0: it is profiled)
-        rate = signal + "'"
-        if rate in coefs and system.tau is not None:
-            coefs[rate] = coefs[rate] + (gain - small) * system.tau
-        coefs[signal] = coefs[signal] - gain + small
-        coefs[spec.delayed_term.name] = -small
-        models[label] = IdentifiedModel(spec, coefs, model.lam, dict(model.info), model.tau)
+        restarted = estimated_gains(model) if every else _cancelling(model)
+        coefs = dict(model.coefficients)
+        for signal, column, gain in restarted:
+            small = SMALL_GAIN * (abs(coefs[signal] - gain) or abs(gain)) * np.sign(gain)  # (never 0: it is profiled)
+            rate = signal + "'"
+            if rate in coefs and system.tau is not None:
+                coefs[rate] = coefs[rate] + (gain - small) * system.tau
+            coefs[signal] = coefs[signal] - gain + small
+            coefs[column] = -small
+        models[label] = IdentifiedModel(model.spec, coefs, model.lam, dict(model.info), model.tau) if restarted \
+            else model
     return replace(system, models=models)
 
 
@@ -1210,9 +1227,10 @@ class _Problem:
                 columns[system.column(label, spec.inertia_term.name)] = self._name(label, "m", spec.inertia_term.name)
             for term in s.terms:
                 columns[system.column(label, term.name)] = self._name(label, spec.parameter_name(term.name), term.name)
-            if self.delay is not None and spec.delay.gain is None:
-                for name, term in zip(spec.gain_names, spec.delayed_terms):
-                    columns[system.column(label, term.name)] = self._name(label, name, name)
+            if self.delay is not None:
+                for name, term, free in zip(spec.gain_names, spec.delayed_terms, spec.delay.estimated):
+                    if free:
+                        columns[system.column(label, term.name)] = self._name(label, name, name)
         self.tied = _rooted({columns[a]: (columns[b], f) for a, b, f in system.ties
                              if a in columns and b in columns and coefficients.get(a) and coefficients.get(b)})
         for label, model in system.models.items():
@@ -1229,9 +1247,12 @@ class _Problem:
                 lower.append(0.0 if term.name in spec.nonnegative else -np.inf)  # the spec's signs hold
                 natural.append(force / remembered(experiments[0], ("size", term, tuple(self.coordinates), self.starts[0]),
                                                   lambda term=term: typical_size(term.evaluate(typical))))
-            if self.delay is not None and spec.delay.gain is None:
-                for name, signal in zip(spec.gain_names, (self.delay.coordinate, velocity_symbol(self.delay.coordinate))):
-                    gains.append((label, name, self._name(label, name, name), force / typical_size(typical[signal])))
+            if self.delay is not None:
+                signals = (self.delay.coordinate, velocity_symbol(self.delay.coordinate))
+                for name, signal, free in zip(spec.gain_names, signals, spec.delay.estimated):
+                    if free:
+                        gains.append((label, name, self._name(label, name, name),
+                                      force / typical_size(typical[signal])))
         if self.delay is not None and self.fixed_tau is None:
             names.append("tau")
             start.append(float(next(s.tau for s in self.systems.values())))
@@ -1328,8 +1349,8 @@ class _Problem:
             coefs += [values[self._name(label, spec.parameter_name(t.name), t.name)] for t in s.terms]
             terms.append(tuple(s.terms))
             if self.delay is not None:
-                for q, name in enumerate(spec.gain_names):
-                    gain[q, i] = values[self._name(label, name, name)] if spec.delay.gain is None else getattr(s, name)
+                for q, (name, free) in enumerate(zip(spec.gain_names, spec.delay.estimated)):
+                    gain[q, i] = values[self._name(label, name, name)] if free else getattr(s, name)
         coefs = np.array(coefs, float).reshape(-1, B)
         tau = np.maximum(values["tau"], 0.0) if self.delay is not None else np.zeros(B)
         any_system = next(iter(self.systems.values()))
@@ -1398,8 +1419,8 @@ class _Problem:
                 params["m"] = values[self._name(label, "m", spec.inertia_term.name)]
             if self.delay is not None:
                 params["tau"] = values["tau"]
-                if spec.delay.gain is None:
-                    params.update({name: values[self._name(label, name, name)] for name in spec.gain_names})
+                params.update({name: values[self._name(label, name, name)]
+                               for name, free in zip(spec.gain_names, spec.delay.estimated) if free})
             models[label] = _updated(model, s, params)
             if "tau_u" in values and spec.input_delay is not None:
                 models[label] = replace(models[label], spec=spec.with_input_tau(values["tau_u"]))

@@ -86,7 +86,8 @@ class DelayedFeedback:
                 raise CvxidError(
                     f"[model.delay] gain gives {len(self.gain)} gains for {len(self.orders)} fed-back signal(s): one "
                     "gain for each signal, in the order of signal")
-            object.__setattr__(self, "gain", tuple(float(g) for g in self.gain))
+            gains = tuple(None if g is None else float(g) for g in self.gain)  # (None: that one estimated)
+            object.__setattr__(self, "gain", None if gains == (None, None) else gains)
         elif self.rate and self.gain is not None:
             raise CvxidError(
                 "[model.delay] gain is one number for two fed-back signals: give one gain for each, in the order of "
@@ -100,12 +101,13 @@ class DelayedFeedback:
             raise CvxidError(
                 f"[model.delay] method must be one of {', '.join(METHODS)}, got '{self.method}'"
             )
-        if self.gain is None and self.method == "taylor":
+        if any(self.estimated) and self.method == "taylor":
             raise CvxidError(
-                "[model.delay] gain is required with method = 'taylor' (a known feedback gain, "
-                "e.g. gain = 2.0); with method = 'exact' it may be left out and is estimated"
-            )
-        if self.gains is not None and (not np.all(np.isfinite(self.gains)) or not np.any(self.gains)):
+                "[model.delay] gain is required with method = 'taylor' (the known feedback gain, e.g. "
+                + ("gain = [2.0, 0.3] for the position's and the velocity's" if self.rate else "gain = 2.0")
+                + "); with method = 'exact' it may be left out and is estimated")
+        known = [g for g in self.gains or () if g is not None]
+        if not np.all(np.isfinite(known)) or (known and not any(self.estimated) and not np.any(known)):
             raise CvxidError(f"[model.delay] gain must be a finite non-zero number (or pair), got {self.gain}")
         if self.taylor_order < 1:
             raise CvxidError(
@@ -137,11 +139,18 @@ class DelayedFeedback:
         return (self.derivative, self.derivative + 1) if self.rate else (self.derivative,)
 
     @property
-    def gains(self) -> tuple[float, ...] | None:
-        """The known gains, one per fed-back signal (in :attr:`orders`), or None (estimated)."""
+    def gains(self) -> tuple[float | None, ...] | None:
+        """The known gains, one per fed-back signal (in :attr:`orders`; None for one
+        estimated, which only the given-value check asks for), or None (all estimated)."""
         if self.gain is None:
             return None
         return tuple(self.gain) if self.rate else (float(self.gain),)
+
+    @property
+    def estimated(self) -> tuple[bool, ...]:
+        """Whether each fed-back signal's gain is estimated."""
+        gains = self.gains
+        return tuple(gains is None or g is None for g in (gains or self.orders))
 
     @property
     def signals(self) -> tuple[str, ...]:
@@ -181,12 +190,14 @@ class DelayedFeedback:
         :math:`x^{(order)}`, :math:`j` = order minus the order of signal :math:`s` (each
         signal expanded up to the same derivative, :attr:`highest_order`: with the rate the
         position's to order :math:`r + 1`)."""
-        share = 0.0
-        for q, gain in zip(self.orders, self.gains):
-            j = order - q
-            if 0 <= order <= self.highest_order and j >= 0:
-                share -= gain * (-tau) ** j / factorial(j)
-        return share
+        return sum(-gain * (-tau) ** j / factorial(j) for j, gain in self._powers(order))
+
+    def _powers(self, order: int) -> list[tuple[int, float]]:
+        """The power :math:`j` of :math:`-\\tau` and the gain of each signal's share of
+        column ``order``."""
+        if not 0 <= order <= self.highest_order:
+            return []
+        return [(order - q, gain) for q, gain in zip(self.orders, self.gains) if order >= q]
 
     def estimate_tau(self, pure: dict[int, float], weights: dict[int, float] | None = None) -> float:
         """:math:`\\tau` from the coefficients of the pure-delay columns (order → value).
@@ -201,6 +212,8 @@ class DelayedFeedback:
                 "coefficient; raise [model.delay] taylor_order"
             )
         weights = weights or {k: 1.0 for k in pure}
+        if self.rate and not any(pure.values()):  # (every pure column 0: tau = 0 fits them exactly)
+            return 0.0
         guesses = []
         for order, a in pure.items():
             if self.rate:  # each column's share is a polynomial in tau: its positive roots
@@ -221,7 +234,8 @@ class DelayedFeedback:
             return 0.0
         orders = np.array(list(pure))
         values = np.array([pure[k] for k in orders])
-        scale = np.array([weights[k] for k in orders]) / np.maximum(np.abs(values), 1e-300)
+        # (each column relative to its own size; one at 0 beside others weighs as a millionth of the largest)
+        scale = np.array([weights[k] for k in orders]) / np.maximum(np.abs(values), 1e-6 * np.max(np.abs(values)))
 
         def resid(x):
             return scale * (values - np.array([self.contribution(k, x[0]) for k in orders]))
@@ -236,8 +250,6 @@ class DelayedFeedback:
         """The delay's share of column ``order`` minus ``value``, as a polynomial in tau."""
         coefs = np.zeros(self.highest_order + 1)
         coefs[0] = -value
-        for q, gain in zip(self.orders, self.gains):
-            j = order - q
-            if 0 <= order <= self.highest_order and j >= 0:
-                coefs[j] -= gain * (-1.0) ** j / factorial(j)
+        for j, gain in self._powers(order):
+            coefs[j] -= gain * (-1.0) ** j / factorial(j)
         return np.polynomial.Polynomial(coefs)

@@ -153,9 +153,10 @@ class ModelSpec:
         if self.delay:
             for term in self.delay.taylor_terms():
                 cols.setdefault(term.name, Column(term, DELAY))
-            if self.delay.exact and self.delay.gain is None:
-                for term in self.delayed_terms:
-                    cols[term.name] = Column(term, DELAY)
+            if self.delay.exact:
+                for term, estimated in zip(self.delayed_terms, self.delay.estimated):
+                    if estimated:
+                        cols[term.name] = Column(term, DELAY)
         return list(cols.values())
 
     @property
@@ -186,9 +187,10 @@ class ModelSpec:
         r"""The fed-back signals (``x``; with the rate ``x'`` too) whose gains are estimated
         and that are library columns too: at :math:`\tau = 0` each and its delayed column are
         one column, and for a short delay nearly so."""
-        if self.delay is None or self.delay.gain is not None:
+        if self.delay is None:
             return ()
-        return tuple(s for s in self.delay.signals if s in self.library.names)
+        free = zip(self.delay.signals, self.delay.estimated)
+        return tuple(signal for signal, estimated in free if estimated and signal in self.library.names)
 
     @property
     def confounded_signal(self) -> str | None:
@@ -277,8 +279,8 @@ class ModelSpec:
         elif self.delay:
             if tau is None:
                 raise CvxidError("an exact-delay model needs the delay tau it was fitted for")
-            if gain is None:
-                gain = tuple(-coefs.get(t.name, 0.0) for t in self.delayed_terms)
+            known = gain or (None,) * len(self.delay.orders)
+            gain = tuple(-coefs.get(t.name, 0.0) if g is None else g for t, g in zip(self.delayed_terms, known))
         mass = coefs.get(self.inertia_term.name, 0.0) if self.inertia else self.mass
         return mass, {t.name: coefs.get(t.name, 0.0) for t in self.library}, tau, gain
 
@@ -310,8 +312,8 @@ class ModelSpec:
             out[pname] = sign * v
         if tau is not None:
             out["tau"] = tau
-        if self.delay and self.delay.gain is None:
-            out.update(zip(self.gain_names, gain))
+        if self.delay:
+            out.update((name, g) for name, g, free in zip(self.gain_names, gain, self.delay.estimated) if free)
         if self.input_delay is not None:
             out["tau_u"] = self.input_delay.value
         return out

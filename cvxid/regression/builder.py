@@ -297,7 +297,8 @@ class RegressionBuilder:
             p = self._target(block, model)
             if exact and model.delay.gain is not None:
                 for q, gain in zip(model.delay.orders, model.delay.gains):
-                    p = p + gain * self._delayed(block, tau, q)
+                    if gain is not None:  # (a given gain's signal moves to the target)
+                        p = p + gain * self._delayed(block, tau, q)
             Ps.append(np.column_stack([
                 self._delayed(block, tau, c.term.derivative) if isinstance(c.term, DelayedSignal)
                 else self._input_rate(block, model) if isinstance(c.term, InputRate)

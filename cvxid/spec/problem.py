@@ -743,20 +743,22 @@ def _model(table: Table, where: str = "model", others: tuple[str, ...] = ()) -> 
     ), polynomial
 
 
-def _fed_back(d: Table, where: str, coords: tuple[str, ...]) -> tuple[str, int, bool, float | tuple | None]:
+def _fed_back(d: Table, where: str, coords: tuple[str, ...],
+              estimable: bool = True) -> tuple[str, int, bool, float | tuple | None]:
     """A delay table's ``signal`` and ``gain``: (coordinate, derivative order, whether its
     rate is fed back too, the gain(s) or None).  ``signal = "x"`` or ``"x'"`` with one gain;
     ``signal = ["x", "x'"]`` (the paper's :math:`b_0 x(t-\\tau) + b_1 \\dot x(t-\\tau)`)
-    with ``gain = [b0, b1]``."""
+    with ``gain = [b0, b1]``; ``estimable``: a model's gains may be left out (a truth's not)."""
     written = d.get("signal", coords[0])
     signals = written if isinstance(written, list) else [written]
     choices = " or ".join(f"'{c}' or \"{c}'\"" for c in coords)
-    pairs = f"[\"{coords[0]}\", \"{coords[0]}'\"] (a position and its velocity, the paper's b0 x(t - tau) + b1 x'(t - tau))"
+    pairs = (f"[\"{coords[0]}\", \"{coords[0]}'\"] (a position and its velocity, the paper's b0 x(t - tau) + "
+             "b1 x'(t - tau))")
     if not signals or len(signals) > 2 or not all(isinstance(s, str) for s in signals):
         raise CvxidError(f"spec: [{where}] signal must be {choices}, or the pair {pairs}; got {written!r}")
     for signal in signals:
         if signal.strip().rstrip("'") not in coords or len(signal) - len(signal.rstrip("'")) > 1:
-            raise CvxidError(f"spec: [{where}] signal must be {choices}, or the pair {pairs}; got '{signal}'")
+            raise CvxidError(f"spec: [{where}] signal must be {choices}, or the pair {pairs}; got {signal!r}")
     signals = [s.strip() for s in signals]
     coordinate, derivative = signals[0].rstrip("'"), len(signals[0]) - len(signals[0].rstrip("'"))
     rate = len(signals) == 2
@@ -773,8 +775,8 @@ def _fed_back(d: Table, where: str, coords: tuple[str, ...]) -> tuple[str, int, 
     gains = d["gain"]
     if not isinstance(gains, list) or len(gains) != 2:
         raise CvxidError(f"spec: [{where}] gain must list one gain for each fed-back signal, in the order of signal "
-                         f"(gain = [b0, b1] for {signals}), got {gains!r}; leave gain out with method = 'exact' to "
-                         "estimate both")
+                         f"(gain = [b0, b1] for {signals}), got {gains!r}" + (
+                             "; leave gain out with method = 'exact' to estimate both" if estimable else ""))
     return coordinate, derivative, rate, tuple(_number({"gain": g}, "gain", where) for g in gains)
 
 
@@ -957,7 +959,7 @@ def _truth(raw: Table, model: ModelSpec) -> Truth:
         d = _table(t, "delay", where, {"signal", "gain", "tau"})
         if "gain" not in d:
             raise CvxidError("spec: [truth.delay] needs 'gain' (the true feedback gain, one for each signal)")
-        _, derivative, _, gain = _fed_back(d, "truth.delay", (coord,))
+        _, derivative, _, gain = _fed_back(d, "truth.delay", (coord,), estimable=False)
         gains = (*np.atleast_1d(gain), 0.0)
         tau = _number(d, "tau", "truth.delay")
         if tau < 0:

@@ -57,10 +57,11 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
     truth, (equation,) = spec.truth.system, spec.truth.system.equations
     base = spec.model
     library = Library(equation.terms)
-    gain = equation.delay_gain
+    gain = (equation.delay_gain, equation.delay_rate_gain) if equation.delay_rate_gain else equation.delay_gain
+    rate = bool(equation.delay_rate_gain)  # (the paper's b0 x(t - tau) + b1 x'(t - tau))
     if method in ("paper as published", "paper (true v)", "paper", "taylor5"):
         paper = method.startswith("paper")
-        delay = DelayedFeedback(base.coordinate, truth.derivative, gain, 3 if paper else 5)
+        delay = DelayedFeedback(base.coordinate, truth.derivative, gain, 3 if paper else 5, rate=rate)
         orders = {"paper as published": (2, 3), "taylor5": (5, 6)}.get(method, (None, None))
         model = replace(base, library=library, delay=delay, orders=orders,
                         keep_initial_conditions=method == "paper as published")
@@ -71,7 +72,7 @@ def _fit(spec: ProblemSpec, method: str, experiment) -> tuple[dict, tuple | None
         return model.physical(dict(zip(reg.names, fit.coefficients))), None
     tau_max = max(0.5, 2.5 * float(truth.tau))
     delay = DelayedFeedback(base.coordinate, truth.derivative, gain, method="exact", tau_max=tau_max,
-                            history=truth.history)
+                            history=truth.history, rate=rate)
     model = replace(base, library=library, delay=delay)
     family = RegressionBuilder(model, experiment, "savgol")
     profile = profile_delay(family, nonnegative=model.nonnegative)
