@@ -218,3 +218,14 @@ def test_a_held_initial_position_feeds_back_no_velocity_before_the_record():
     x, v = 1.0 + np.sin(t), np.cos(t)
     assert np.all(measured_delayed(0.1, "initial", 1, t, x, v)[t < 0.1 - 1e-9] == 0.0)
     assert np.all(measured_delayed(0.1, "initial", 0, t, x, v)[t < 0.1 - 1e-9] == x[0])
+
+
+def test_a_model_with_one_gain_given_and_one_estimated_prints_both():
+    """The given-value check frees one gain while the other stays given: the model's
+    columns then hold the freed signal's delayed column alone, and it prints."""
+    from cvxid.model.equation import ModelSpec
+
+    spec = ModelSpec(["x", "x'"], delay=DelayedFeedback("x", 0, (B0, None), method="exact", rate=True))
+    assert "= f - 2 x(t - tau) + b1 x'(t - tau)" in repr(spec)
+    assert [c for c in spec.column_names if c.endswith("(t-tau)")] == ["x'(t-tau)"]
+    assert spec.physical({"x''": 1.0, "x": 6.0, "x'": 0.8, "x'(t-tau)": -B1}, TAU)["rate_gain"] == B1

@@ -329,7 +329,8 @@ class ModelSpec:
         rhs = self.input + ("(t - tau_u)" if self.input_delay is not None else "")
         if self.delay:
             unknown = ("b0", "b1") if self.delay.rate else ("b",)
-            rhs += self.delay.feedback_text(self.delay.gains or unknown)
+            known = self.delay.gains or (None,) * len(unknown)
+            rhs += self.delay.feedback_text([name if g is None else g for g, name in zip(known, unknown)])
         lines = [
             f"ModelSpec: {lhs} + sum_i c_i g_i = {rhs}",
             f"  library: {len(self.library)} terms ({', '.join(self.library.names)})",
