@@ -9,8 +9,9 @@ where every equation has its own coordinate :math:`q_i` (its second derivative i
 equation's inertia), the terms may read every coordinate, and :math:`q_d^{(r)}` (position,
 :math:`r = 0`, or velocity, :math:`r = 1`) of one coordinate is fed back with the delay
 :math:`\tau`, and with :math:`r = 0` its rate too (the paper's
-:math:`b_0 x(t-\tau) + b_1 \dot x(t-\tau)`; :math:`b'_i = 0` without it).  A single equation (:class:`System`) is the case :math:`N = 1`; a coupled
-one is a :class:`CoupledSystem`.  Both run through :func:`integrate`.
+:math:`b_0 x(t-\tau) + b_1 \dot x(t-\tau)`; :math:`b'_i = 0` without it).  A single
+equation (:class:`System`) is the case :math:`N = 1`; a coupled one is a
+:class:`CoupledSystem`.  Both run through :func:`integrate`.
 
 The method is the classical fixed-step Runge–Kutta method.  An equation's own Coulomb
 friction :math:`F_c\,\operatorname{sign}(\dot q_i)` (:math:`F_c > 0`) is integrated as

@@ -520,8 +520,9 @@ def _warn_negative_damping(out: RunResult) -> None:
 def _net_damping(model, damping: float) -> float:
     r"""The linear damping with the fed-back delay's share: a feedback
     :math:`b\,x(t - \tau) \approx b\,x - b\tau\,\dot x` on the right-hand side adds
-    :math:`b\tau`, one of the velocity :math:`b\,\dot x(t - \tau)` takes :math:`b` (a real
-    record's damping of -1.50 beside :math:`35.7\,\theta(t - 0.0445)` is +0.09 net)."""
+    :math:`b\tau`, one of the velocity :math:`b\,\dot x(t - \tau)` takes :math:`b`, both at once
+    (the paper's) :math:`b_0\tau - b_1` (a real record's damping of -1.50 beside
+    :math:`35.7\,\theta(t - 0.0445)` is +0.09 net)."""
     delay = model.spec.delay
     if delay is None or delay.coordinate != model.spec.coordinate:
         return damping
