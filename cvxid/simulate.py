@@ -524,21 +524,21 @@ def _term_codes(coordinates: list[str], terms: list[tuple[Term, ...]]):
 
 # ---------------------------------------------------------------------- kernels
 @njit(cache=True, error_model="numpy", inline="always")
-def _delayed_value(b, x, v, i, w0, w1, w2, w3, end, d, q, instant, fill, Hy, Hd, X, V, A, steps):
+def _delayed_value(b, x, v, i, w0, w1, w2, w3, end, d, q, s, instant, fill, Hy, Hd, X, V, A, steps):
     """:math:`q_d^{(q)}` at the delayed time that falls ``i`` nodes on with the Hermite
-    weights ``w`` (or before t = 0); ``end``: the stage ends a step; ``fill``, ``Hy``,
-    ``Hd``: this signal's assumed value, measured past and its slope."""
+    weights ``w`` (or before t = 0); ``end``: the stage ends a step; row ``s`` of ``fill``,
+    ``Hy``, ``Hd``: this signal's assumed value, measured past and its slope."""
     if instant[b]:
         return x[d] if q == 0 else v[d]
-    P = Hy.size
+    P = Hy.shape[1]
     if P > 0 and i < 0:  # the measured past: Hermite between its nodes (node 0 is the start)
-        y1, d1 = Hy[P + i + 1] if i + 1 < 0 else 0.0, Hd[P + i + 1] if i + 1 < 0 else 0.0
+        y1, d1 = Hy[s, P + i + 1] if i + 1 < 0 else 0.0, Hd[s, P + i + 1] if i + 1 < 0 else 0.0
         if i + 1 == 0:
             y1, d1 = (X[0, d, b], V[0, d, b]) if q == 0 else (V[0, d, b], A[0, d, b])
-        return w0 * Hy[P + i] + w1 * Hd[P + i] + w2 * y1 + w3 * d1
+        return w0 * Hy[s, P + i] + w1 * Hd[s, P + i] + w2 * y1 + w3 * d1
     # the stage at the end of a step reads the left limit at t = 0 (a step ends there)
     if i < 0 or (i == 0 and w0 == 1.0 and end and P == 0):
-        return fill[b]
+        return fill[s, b]
     j = min(i, steps - 1)
     if q == 0:
         return w0 * X[j, d, b] + w1 * V[j, d, b] + w2 * X[j + 1, d, b] + w3 * V[j + 1, d, b]
@@ -685,11 +685,15 @@ def _step(b, k, frac, r, x, v, xn, vn, a, work, modes, own, terms, stack, F, mas
             i += k
             for e in range(C):
                 f[e] = _input_at(F, 2 * (k + frac + c * r), e, b)
-        for s in range(gain.shape[0]):  # the fed-back signal, then its rate
-            qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q + s, instant, fill[s], Hy[s], Hd[s], X, V,
-                                A, steps)
+        qd = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q, 0, instant, fill, Hy, Hd, X, V, A, steps)
+        if gain.shape[0] > 1:  # (the fed-back position's rate, the paper's b1 x'(t - tau))
+            rate = _delayed_value(b, xs, vs, i, w0, w1, w2, w3, ci == 2, d, q + 1, 1, instant, fill, Hy, Hd, X, V, A,
+                                  steps)
             for e in range(C):
-                f[e] += gain[s, e, b] * qd
+                f[e] += gain[0, e, b] * qd + gain[1, e, b] * rate
+        else:
+            for e in range(C):
+                f[e] += gain[0, e, b] * qd
         _accel(b, xs, vs, f, terms, stack, sign, bound, modes, own, mass, coefs, hs, a[j])
         if j == 0 and frac == 0.0:  # the later stages may read this step's slope of a fed-back velocity
             A[k, :, b] = a[0]
