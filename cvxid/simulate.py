@@ -308,8 +308,8 @@ def integrate(t: np.ndarray, forces: Callable[[np.ndarray, float], np.ndarray], 
         raise CvxidError(f"history must be one of {', '.join(HISTORIES)}, got '{history}'")
     mass, gain = np.asarray(mass, float), np.asarray(gain, float)
     gain = gain[None] if gain.ndim == 2 else gain
-    if gain.shape[0] > 1 and derivative != 0:
-        raise CvxidError("a fed-back velocity's rate (an acceleration) cannot be fed back")
+    if gain.shape[0] > 1:
+        _check_rate(derivative, gain[1])
     if np.any(mass <= 0):
         raise SimulationDiverged(
             f"the model's inertia is {np.min(mass):g} (not positive): it cannot be simulated; "

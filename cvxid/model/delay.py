@@ -149,8 +149,9 @@ class DelayedFeedback:
     @property
     def estimated(self) -> tuple[bool, ...]:
         """Whether each fed-back signal's gain is estimated."""
-        gains = self.gains
-        return tuple(gains is None or g is None for g in (gains or self.orders))
+        if self.gains is None:
+            return (True,) * len(self.orders)
+        return tuple(g is None for g in self.gains)
 
     @property
     def signals(self) -> tuple[str, ...]:
