@@ -344,8 +344,8 @@ def main(argv=None) -> int:
     p_bench.add_argument("--stability", default=None, choices=("on", "off"),
                          help="the specs' [fit] stability selection (--heldout; default: the documented default)")
     p_bench.add_argument("--prune", default=None, choices=("on", "off"),
-                         help="the specs' [fit] prune: selected terms pruned by simulation error (--heldout; default: "
-                              "the documented default)")
+                         help="the specs' [fit] prune: selected terms pruned, and exchanged while the model misses "
+                              "the record, by simulation error (--heldout; default: the documented default)")
     p_bench.add_argument("--known-gain", action="store_true", help="give the spec the true feedback gain (--heldout)")
     p_bench.add_argument("--feedback", choices=("position", "paper"), default=None,
                          help="the drawn loop feeds back the position (default), or the paper's position and velocity, "

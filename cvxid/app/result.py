@@ -218,6 +218,7 @@ class RunResult:
             },
             "pruning": None if self.pruning is None else {
                 "removed": self.pruning.removed,
+                "added": self.pruning.added,
                 "history": self.pruning.history.to_dict(orient="records"),
                 "noise": self.pruning.noise,
                 "seconds": self.pruning.seconds,

@@ -987,7 +987,7 @@ def _identify(spec) -> RunResult:
     if spec.diagnose is not None:
         rows, test_rows = _diagnose(spec, out, rows, test_rows, velocity)
     if fit.refine == "output_error":
-        _polish(out)
+        _polish(out, rows)
     _score(out, test_rows)
     return out
 
@@ -1116,13 +1116,14 @@ def _schedule(system: SystemSpec) -> dict:
     return COUPLED_POLISH if system.single is None else {}
 
 
-def _polish(out: RunResult):
-    """The output-error polish of every coordinate; its delay interval replaces the
+def _polish(out: RunResult, rows: SystemBuilder):
+    """The output-error polish of every coordinate (``rows``: the equation-error
+    regression of ``out.system``, for the pruning's additions); its delay interval replaces the
     profile's.  With ``[diagnose] refine`` and a test record, then the diagnosis by
     simulation error (:mod:`cvxid.diagnosis.simulation`)."""
     out.unpolished = out.system
     out.polish = polish(out.system, out.train, **_schedule(out.system.spec))
-    _prune(out)
+    _prune(out, rows)
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
@@ -1148,9 +1149,11 @@ def _warn_added_then_zero(out: RunResult) -> None:
             CvxidWarning, stacklevel=2)
 
 
-def _prune(out: RunResult) -> None:
+def _prune(out: RunResult, rows: SystemBuilder) -> None:
     r"""``[fit] prune``: the terms the selector chose from the library, pruned by simulation
-    error after the polish (:func:`~cvxid.identify.stepwise.prune_by_simulation`).  Listed
+    error after the polish, and exchanged for the library's other terms while the model
+    misses the training record by more than its noise
+    (:func:`~cvxid.identify.stepwise.prune_by_simulation`).  Listed
     terms are never pruned, nor the effects the diagnosis added (its rule already asked the
     test record's errors), nor the linear ``x`` and ``x'``: a delay stands in for a damping
     in the simulation error (:math:`b\,x(t-\tau) \approx b\,x - b\,\tau\,\dot x`), so
@@ -1162,7 +1165,7 @@ def _prune(out: RunResult) -> None:
     removable = [system.column(label, n) for label, spec in system.specs.items() for n in spec.library.names
                  if n not in spec.listed and n not in spec.linear_terms and system.column(label, n) not in added]
     if removable:
-        out.pruning = prune_by_simulation(out.polish, out.train, removable, schedule=_schedule(out.system.spec))
+        out.pruning = prune_by_simulation(out.polish, out.train, removable, rows, schedule=_schedule(out.system.spec))
         out.polish = out.pruning.polish
 
 

@@ -54,11 +54,10 @@ import warnings
 from typing import Sequence
 
 import numpy as np
-from scipy.stats import chi2
 
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identify.path import validation_score
-from cvxid.identify.profile import effective_rows
+from cvxid.identify.profile import chance_factor, effective_rows
 from cvxid.identify.problem import constrained_least_squares
 from cvxid.identify.selection import StabilitySettings
 from cvxid.regression.regression import Reduced, Regression
@@ -114,15 +113,11 @@ def inclusion(fitted: Regression, scored: Regression, kept: Sequence[str], added
     return float(np.mean(keeps))
 
 
-CHANCE = 0.95
-"""The level of :func:`chance_fall`."""
-
-
 def chance_fall(residuals: Sequence[np.ndarray | None], parameters: int = 1) -> float:
     r"""The factor by which ``parameters`` added parameters lower a test record's
-    simulation error by chance alone (level :data:`CHANCE`), read off the error of the
-    model *with* them (``residuals``, one per coordinate), as an F test reads the larger
-    model's residual variance:
+    simulation error by chance alone (:func:`~cvxid.identify.profile.chance_factor`), read
+    off the error of the model *with* them (``residuals``, one per coordinate), as an F
+    test reads the larger model's residual variance:
 
     .. math:: \left(1 + \chi^2_{p,\,0.95} / n_\text{eff}\right)^{1/2},
 
@@ -139,8 +134,7 @@ def chance_fall(residuals: Sequence[np.ndarray | None], parameters: int = 1) -> 
     finite = [None if r is None else r[np.isfinite(r)] for r in residuals]
     if not finite or any(r is None or r.size == 0 for r in finite):
         return 1.0
-    n = min(effective_rows(r) for r in finite)
-    return float(np.sqrt(1.0 + chi2.ppf(CHANCE, parameters) / n))
+    return chance_factor(min(effective_rows(r) for r in finite), parameters)
 
 
 def accepted(probability: float) -> bool:

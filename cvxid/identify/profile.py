@@ -58,6 +58,24 @@ def effective_rows(residual: np.ndarray) -> float:
     return float(max(1.0, n / (1 + 2 * acf[1:stop].sum())))
 
 
+CHANCE = 0.95
+"""The level of :func:`chance_factor`."""
+
+
+def chance_factor(effective: float, parameters: int = 1, tries: int = 1) -> float:
+    r"""The factor by which ``parameters`` added parameters lower a root-mean-square error
+    by chance alone, read off the error of the model *with* them as an F test reads the
+    larger model's residual variance,
+
+    .. math:: \left(1 + \chi^2_{p,\,1 - (1 - \text{CHANCE}) / m} / n_\text{eff}\right)^{1/2},
+
+    with :math:`n_\text{eff}` its :func:`effective_rows` and :math:`m` the ``tries`` the
+    best of which was taken (Bonferroni's level; 1: the one candidate there was), at the
+    level :data:`CHANCE`."""
+    level = 1.0 - (1.0 - CHANCE) / max(tries, 1)
+    return float(np.sqrt(1.0 + chi2.ppf(level, parameters) / max(effective, 1.0)))
+
+
 def profiled_tau(builder) -> float | None:
     """The delay at which to build ``builder``'s regression when nothing has chosen one
     yet: for an exact delay the profile's estimate over every column, else None (a Taylor

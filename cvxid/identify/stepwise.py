@@ -61,7 +61,7 @@ from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import PolishResult, Step, linearisation, output_error, polish, with_tau
 from cvxid.identify.score import block_score_gain, score_gains
 from cvxid.identify.problem import Problem
-from cvxid.identify.profile import profile_delay
+from cvxid.identify.profile import chance_factor, profile_delay
 from cvxid.identify.system import identified
 from cvxid.model.system import SystemSpec
 from cvxid.parallel import one_blas_thread
@@ -287,7 +287,7 @@ def _trial(system: IdentifiedSystem, experiment: Experiment, step: float, iterat
     return fit, fit.rms_after if np.isfinite(fit.rms_after) else np.inf
 
 
-def _addition(pool, system, rows, fit, current, members, train, step, needed, noise):
+def _addition(pool, system, rows, fit, current, members, train, step, needed, noise, exhaustive=True):
     """The forward step: (unit, converged fit, its simulation error) of the candidate
     whose ranking fit lowers the simulation error most, if its converged fit is below
     ``needed``; else None.  The :data:`SCREEN` best by the score test are fitted first; only
@@ -295,15 +295,17 @@ def _addition(pool, system, rows, fit, current, members, train, step, needed, no
     tried (a poor current fit ranks badly, and the search must not stop earlier than a
     trial of every candidate would).  While the current fit is far from the data (above
     :data:`SCREEN_BELOW` times the ``noise`` level, or diverged), or when no more than
-    :data:`SCREEN` candidates are left, every candidate is fitted at once."""
+    :data:`SCREEN` candidates are left, every candidate is fitted at once; not
+    ``exhaustive``: only the screened best (the pruning's exchange, near the noise)."""
     tau = _delay(fit, system.exact)
-    regression = rows.at(tau if system.exact else None)
+    regression = rows.at(tau if system.exact else None, system.equations)  # (the spec may hold added effects)
     rest = [k for k in members if k not in current]
     screened = fit.rms_after <= SCREEN_BELOW * noise and len(rest) > SCREEN
     batches = _screen(system, fit, rest, members, train, 2 * step) if screened else rest
     trials: dict[str, tuple] = {}
     converged: set[str] = set()
-    for batch in (batches[:SCREEN], batches[SCREEN:]) if screened else (batches,):
+    rounds = (batches[:SCREEN], batches[SCREEN:]) if screened else (batches,)
+    for batch in rounds if exhaustive else rounds[:1]:
         trials.update(zip(batch, pool(delayed(_trial)(_start(system, regression, _flat(current + [n], members), tau),
                                                       train, 2 * step, RANKING)
                                       for n in progress(batch, f"stepwise: adding term {len(current) + 1}"))))
@@ -393,9 +395,10 @@ def stepwise_output_error(system: SystemSpec, rows: SystemBuilder, train: Experi
 
 @dataclass(frozen=True)
 class Pruning:
-    """The backward half of the search run on a model selected by equation error and
-    polished: the terms it removed, each step's simulation error, and the pruned model
-    polished again (``polish``; the given one when nothing was removed)."""
+    """The search run on a model selected by equation error and polished: the terms it
+    removed and, where the model missed the record by more than the noise, the terms it
+    exchanged; each step's simulation error; the result polished again (``polish``; the
+    given one when nothing changed)."""
 
     history: pd.DataFrame  # step, action, term, rms
     noise: float
@@ -404,59 +407,130 @@ class Pruning:
 
     @property
     def removed(self) -> list[str]:
-        """The columns it removed (a tied unit's every column)."""
-        return [c for row in self.history.itertuples() if row.action == "remove" for c in row.columns]
+        """The columns it removed (a tied unit's every column) and did not add back."""
+        return self._changed("remove")
+
+    @property
+    def added(self) -> list[str]:
+        """The columns it added and did not remove again."""
+        return self._changed("add")
+
+    def _changed(self, action: str) -> list[str]:
+        """The columns whose first and last step were ``action``: in the model at the start
+        and not at the end (remove), or the other way round (add)."""
+        first, last = {}, {}
+        for row in self.history.itertuples():
+            if row.action in ("add", "remove"):
+                for column in row.columns:
+                    first.setdefault(column, row.action)
+                    last[column] = row.action
+        return [c for c in first if first[c] == last[c] == action]
 
     def __repr__(self) -> str:
         removed = ", ".join(self.removed) or "nothing"
-        lines = [f"Pruning by simulation error ({self.seconds:.1f} s, noise level {self.noise:.4g}): removed {removed}"]
+        added = f"; added {', '.join(self.added)}" if self.added else ""
+        lines = [f"Pruning by simulation error ({self.seconds:.1f} s, noise level {self.noise:.4g}): removed {removed}"
+                 f"{added}"]
         lines += ["  " + line for line in self.history.drop(columns="columns").to_string(index=False).splitlines()]
         return "\n".join(lines)
 
 
+def _exchange(pool, system, rows, fit, rms, current, kept, members, train, step, sigma, tolerance):
+    """One exchange of the pruning: the candidate the forward step finds best (the score
+    test's :data:`SCREEN` best fitted, near the noise), then the backward steps.  Returns
+    the history rows, and ``(fit, rms, units)`` when the result is another model that fits
+    better than ``fit`` by more than its added parameters would by chance, the best of the
+    candidates taken (:func:`~cvxid.identify.profile.chance_factor` at Bonferroni's level
+    over them; any fall when it has no more parameters), else None."""
+    candidates = len(members) - len(current)
+    added = _addition(pool, system, rows, fit, current, members, train, step, rms, sigma, exhaustive=False)
+    if added is None:
+        return [{"action": "exchange: no candidate lowers the error", "term": "", "columns": [], "rms": rms}], None
+    name, trial, trial_rms = added
+    units = current + [name]
+    steps = [{"action": "add", "term": name, "columns": list(members[name]), "rms": trial_rms}]
+    trial, trial_rms = _backward(pool, trial, trial_rms, units, kept, members, train, step, (1 + tolerance) * sigma,
+                                 tolerance, steps)
+    extra = len(units) - len(current)  # parameters: a tied unit is one
+    chance = chance_factor(trial.effective_rows, extra, candidates) if extra > 0 else 1.0
+    if set(units) == set(current) or trial_rms * chance >= rms:
+        dropped = [row["term"] for row in steps if row["action"] == "remove"]
+        term = name + (f" (then without {', '.join(dropped)})" if dropped else "")
+        return [{"action": "exchange refused (within chance)", "term": term, "columns": [], "rms": trial_rms}], None
+    return steps, (trial, trial_rms, units)
+
+
 @one_blas_thread
-def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Sequence[str], step: float = 1e-3,
-                        tolerance: float = 0.005, schedule: dict | None = None) -> Pruning:
+def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Sequence[str],
+                        rows: SystemBuilder | None = None, step: float = 1e-3, tolerance: float = 0.005,
+                        schedule: dict | None = None) -> Pruning:
     r"""Drop the ``removable`` library columns of a polished system (one equation or
-    several) that the simulation error does not need: the backward steps of
-    :func:`stepwise_output_error` (a term goes while :math:`J` without it, the others
-    refitted, stays within ``tolerance`` of :math:`\max(J, \hat\sigma)`, :math:`J` the error
-    before that step), from the polished fit refitted on the search's step; the pruned
-    model is polished again (its delay profiled) and keeps the whole library, the dropped
-    terms at 0; columns a tie joins go together, when all of them may (:func:`units`).  A
-    selection by equation error
-    keeps terms that a velocity estimated from noisy x makes look useful; their simulation
-    error shows they are not."""
+    several) that the simulation error does not need, and, while the model misses the
+    record by more than its noise, exchange them for others.
+
+    * **Backward**: the backward steps of :func:`stepwise_output_error` (a term goes while
+      :math:`J` without it, the others refitted, stays within ``tolerance`` of
+      :math:`\max(J, \hat\sigma)`, :math:`J` the error before that step), from the
+      polished fit refitted on the search's step.
+    * **Exchange** (with the equation-error ``rows``), while
+      :math:`J > (1 + \text{tolerance})\,\hat\sigma`: the ``removable`` column the model
+      lacks that the forward step finds best (the score test's :data:`SCREEN` best fitted;
+      every candidate beyond :data:`SCREEN_BELOW` times the noise), then the backward
+      steps; the result is kept when it is another model whose error :math:`J'` beats
+      :math:`J` by more than its added parameters :math:`p` would by chance, the best of
+      :math:`m` candidates taken,
+      :math:`J' \cdot (1 + \chi^2_{p,\,1 - 0.05/m} / n_\text{eff})^{1/2} < J`
+      (:func:`~cvxid.identify.profile.chance_factor`; any fall when :math:`p \le 0`).
+      A refused exchange is a row of the history; the first one ends the pruning.
+
+    The result is polished again (its delay profiled) and keeps the whole library, the
+    dropped terms at 0; columns a tie joins go together, when all of them may
+    (:func:`units`).  A selection by equation error keeps terms that a velocity estimated
+    from noisy x makes look useful, and may take a collinear term for a true one; their
+    simulation error shows both.  On the paper's system (``duffing_delay.toml``'s noise
+    seeds) the adaptive lasso took ``x^3 x'`` (with ``x x'^3``) for ``x^2 x'`` on most
+    records, a model about 1 % above the noise in :math:`J` that the backward steps keep
+    and one exchange repairs."""
     start = time.perf_counter()
     system = polished.system
     spec = system.spec
     coefficients = system.coefficients
     current = [n for n in library_columns(spec) if coefficients.get(n, 0.0) != 0.0]
+    absent = [n for n in removable if n not in current] if rows is not None else []
     sigma = noise_of(train, system)
-    rows = []
-    if any(n in current for n in removable):
+    history = []
+    if absent or any(n in current for n in removable):
         step = max(step, train.dt)
         cut = spec.selected(set(current))
         models = {label: IdentifiedModel(s, system.models[label].coefficients, system.models[label].lam,
                                          system.models[label].info, system.models[label].tau)
                   for label, s in cut.equations.items()}
         fit, rms = _trial(_system_of(models, cut.ties), train, step)
-        rows.append({"step": 0, "action": "start" if fit is not None else "start: its simulation diverged, nothing "
-                     "pruned", "term": ", ".join(current), "columns": list(current), "rms": rms})
+        history.append({"step": 0, "action": "start" if fit is not None else "start: its simulation diverged, "
+                        "nothing pruned", "term": ", ".join(current), "columns": list(current), "rms": rms})
         if fit is not None:
-            members = units(spec, current)
-            keys = list(members)
-            kept = [k for k, m in members.items() if not set(m) <= set(removable) or k.endswith(ANCHORED)]
+            members = units(spec, current + absent)
+            keys = [k for k, m in members.items() if set(m) & set(current)]
+            kept = [k for k in keys if not set(members[k]) <= set(removable) or k.endswith(ANCHORED)]
+            floor = (1 + tolerance) * sigma
             with Parallel(n_jobs=1) as pool:
-                fit, rms = _backward(pool, fit, rms, keys, kept, members, train, step, (1 + tolerance) * sigma,
-                                     tolerance, rows)
-    if len(rows) > 1:
-        pruned = _polished(fit, train, rows, schedule)
+                fit, rms = _backward(pool, fit, rms, keys, kept, members, train, step, floor, tolerance, history)
+                for _ in range(len(members)):  # (each exchange kept lowers the error)
+                    if rms <= floor or len(keys) == len(members):
+                        break
+                    steps, exchanged = _exchange(pool, spec, rows, fit, rms, keys, kept, members, train, step, sigma,
+                                                 tolerance)
+                    history += [dict(row, step=len(history) + i) for i, row in enumerate(steps)]
+                    if exchanged is None:
+                        break
+                    fit, rms, keys = exchanged
+    if any(row["action"] in ("add", "remove") for row in history):
+        pruned = _polished(fit, train, history, schedule)
         final = pruned.system  # back on the whole library: the diagnosis's candidates are what it lacks
         whole = {label: IdentifiedModel(m.spec, {n: final.models[label].coefficients.get(n, 0.0)
                                                  for n in m.spec.column_names},
                                         final.models[label].lam, final.models[label].info, final.models[label].tau)
                  for label, m in system.models.items()}
         polished = replace(pruned, system=replace(pruned.system, models=whole, ties=system.ties))
-    return Pruning(pd.DataFrame(rows, columns=["step", "action", "term", "columns", "rms"]), sigma,
+    return Pruning(pd.DataFrame(history, columns=["step", "action", "term", "columns", "rms"]), sigma,
                    time.perf_counter() - start, polished)
