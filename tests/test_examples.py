@@ -99,8 +99,8 @@ def test_structure_from_noisy_x_meets_the_foundation_criterion(monkeypatch, tmp_
     # the convex path (lasso, polish, pruning) finds it with the spec's Taylor delay; with an exact
     # delay, the linear terms kept (the default), this seed's lasso picks x^3 x' and x x'^3 for
     # x^2 x' and the pruning takes away the other three spurious terms; its exchange is not
-    # tried, the model being within the noise level at the search's step (13/16 seeds reach the
-    # support on 2026-11-28: docs/benchmarks.md)
+    # tried, the model being within the noise level (14/16 seeds reach the support on
+    # 2026-11-28: docs/benchmarks.md)
     assert table.loc["lasso + polish + pruning", "true support"]
     extra = {name: set(table.loc[name, "extra"].split()) for name in
              ("exact delay, lasso + polish, no pruning", "exact delay, lasso + polish + pruning")}

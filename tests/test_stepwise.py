@@ -132,7 +132,7 @@ def test_the_pruning_exchanges_a_collinear_term_the_selection_took_for_a_true_on
     columns) select x^3 x' for the true x^2 x', a model whose simulation error sits about
     3 % above the noise and whose delay is 15 % short.  The backward steps alone keep it (at
     932741e: the support missed, tau -15 %); the exchange adds x^2 x', the backward steps
-    then drop x^3 x', and the delay is profiled again (15 of 16 noise seeds reach the true
+    then drop x^3 x', and the delay is profiled again (16 of 16 noise seeds reach the true
     support so, 7 of 16 before: docs/benchmarks.md)."""
     result = run(_paper_system(4, estimator="adaptive_lasso"))
     start = result.pruning.history["columns"].iloc[0]

@@ -455,7 +455,8 @@ def _exchange(pool, system, rows, fit, rms, current, kept, members, train, step,
     chance = chance_factor(trial.effective_rows, extra, candidates) if extra > 0 else 1.0
     if set(units) == set(current) or trial_rms * chance >= rms:
         dropped = [row["term"] for row in steps if row["action"] == "remove"]
-        term = name + (f" (then without {', '.join(dropped)})" if dropped else "")
+        term = f"{name} (taken out again)" if name in dropped else \
+            name + (f" (then without {', '.join(dropped)})" if dropped else "")
         return [{"action": "exchange refused (within chance)", "term": term, "columns": [], "rms": trial_rms}], None
     return steps, (trial, trial_rms, units)
 
@@ -473,7 +474,11 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
       :math:`\max(J, \hat\sigma)`, :math:`J` the error before that step), from the
       polished fit refitted on the search's step.
     * **Exchange** (with the equation-error ``rows``), while
-      :math:`J > (1 + \text{tolerance})\,\hat\sigma`: the ``removable`` column the model
+      :math:`J > (1 + \text{tolerance})\,\hat\sigma`, :math:`J` on the search's step or
+      read as on every sample, the larger (the search step's error times the ratio of the
+      given polish's error to the start's on the search's step: a 5 kHz record's search
+      step compares a fifth of its samples, whose error differed from every sample's by
+      up to 1.7 % either way on the paper's system): the ``removable`` column the model
       lacks that the forward step finds best (the score test's :data:`SCREEN` best fitted;
       every candidate beyond :data:`SCREEN_BELOW` times the noise), then the backward
       steps; the result is kept when it is another model whose error :math:`J'` beats
@@ -513,10 +518,11 @@ def prune_by_simulation(polished: PolishResult, train: Experiment, removable: Se
             keys = [k for k, m in members.items() if set(m) & set(current)]
             kept = [k for k in keys if not set(members[k]) <= set(removable) or k.endswith(ANCHORED)]
             floor = (1 + tolerance) * sigma
+            at_samples = polished.rms_after / rms if np.isfinite(polished.rms_after) and rms > 0 else 1.0
             with Parallel(n_jobs=1) as pool:
                 fit, rms = _backward(pool, fit, rms, keys, kept, members, train, step, floor, tolerance, history)
                 for _ in range(len(members)):  # (each exchange kept lowers the error)
-                    if rms <= floor or len(keys) == len(members):
+                    if max(rms, rms * at_samples) <= floor or len(keys) == len(members):
                         break
                     steps, exchanged = _exchange(pool, spec, rows, fit, rms, keys, kept, members, train, step, sigma,
                                                  tolerance)
