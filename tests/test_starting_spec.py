@@ -151,7 +151,11 @@ def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, heade
 
 @pytest.mark.parametrize("damage, said", [
     (lambda rows: rows[:8], "only 6 samples; at least 20 are needed"),  # (80 % of 8 trains)
-    (lambda rows: np.vstack([rows[:300], rows[299:]]), "does not increase from data row 300 to 301"),
+    (lambda rows: np.vstack([rows[:300], rows[299:]]), "does not increase from data row 300 to 301 (0.299, then "
+                                                      "0.299): sort the file and remove repeated rows"),
+    # an outside check: a logger's clock that restarted was to be sorted, interleaving two records
+    (lambda rows: np.vstack([rows[:1500], rows[:1500]]), "the clock goes back by 1.499 s there, as a logger's that "
+                                                         "restarted: the file holds two records; cut it there"),
     (lambda rows: rows[:0], "the file has 0 data rows"),
     (lambda rows: rows[:1], "the file has 1 data row: nothing to identify"),
     (lambda rows: np.column_stack([rows[:, :2], 0 * rows[:, 2]]), "input 'f' is constant"),  # a free decay

@@ -19,6 +19,7 @@ from cvxid import __version__
 from cvxid.data.experiment import TIME_UNITS
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.parallel import BACKENDS
+from cvxid.tools.speed import JOBS as SPEED_JOBS
 from cvxid.progress import set_quiet
 
 
@@ -119,7 +120,7 @@ HELDOUT_FLAGS = ("effects", "duration", "keep", "estimator", "selection", "stabi
 
 def _check_bench_flags(args) -> None:
     """One benchmark per call, and no flag it would ignore: a clear error instead."""
-    modes = [f"--{name}" for name in ("heldout", "long", "accuracy") if getattr(args, name)]
+    modes = [f"--{name}" for name in ("heldout", "long", "accuracy", "speed") if getattr(args, name)]
     if len(modes) > 1:
         raise CvxidError(f"{' and '.join(modes)} are separate benchmarks: give one of them")
     given = [f"--{name.replace('_', '-')}" for name in HELDOUT_FLAGS if getattr(args, name)]
@@ -128,19 +129,24 @@ def _check_bench_flags(args) -> None:
         raise CvxidError(f"{', '.join(given)} {'is' if len(given) == 1 else 'are'} for cvxid bench --heldout")
     if (args.seeds or args.noises) and not (args.heldout or args.accuracy):
         raise CvxidError("--seeds and --noises are for cvxid bench --heldout and --accuracy")
+    if (args.repeat is not None or args.against) and not args.speed:
+        raise CvxidError("--repeat and --against are for cvxid bench --speed")
 
 
 def _bench(args) -> int:
     from cvxid.parallel import engine
 
     _check_bench_flags(args)
-    if args.long and (args.backend or args.scheduler):
-        raise CvxidError("--long runs each record in a fresh process on this machine: drop --backend/--scheduler")
+    if (args.long or args.speed) and (args.backend or args.scheduler):
+        raise CvxidError(f"--{'long' if args.long else 'speed'} runs each record in a fresh process on this machine: "
+                         "drop --backend/--scheduler")
     with engine(args.backend or "loky", args.scheduler):
         if args.heldout:
             return _heldout(args)
         if args.long:
             return _long(args)
+        if args.speed:
+            return _speed(args)
         if args.accuracy:
             return _accuracy(args)
         from cvxid.tools.bench import run_bench
@@ -188,6 +194,29 @@ def _long(args) -> int:
     print("cvxid bench --long: x'' + 0.5 x' + 6 x = f at 1 kHz (CSV), noise 0.001, order-3 library, documented "
           "defaults; one fresh process per row (wall seconds include the import and reading the CSV)")
     print(frame.to_string(index=False, float_format=lambda v: f"{v:.4g}"))
+    if args.json:
+        with open(args.json, "w") as fh:
+            json.dump(plain({"rows": frame.to_dict(orient="records")}), fh, indent=2)
+    return 0
+
+
+def _speed(args) -> int:
+    import json
+
+    from cvxid.app.report import plain
+    from cvxid.tools.speed import speed
+
+    if args.spec:
+        raise CvxidError("--speed takes its jobs after it (--speed duffing_delay,my.toml): give no SPEC")
+    repeat = 5 if args.repeat is None else args.repeat
+    frame = speed([job for job in args.speed.split(",") if job], repeat, args.against)
+    print(f"cvxid bench --speed: wall seconds of `cvxid run JOB --quiet --out DIR`, each in a fresh process (starting "
+          f"Python, importing, the run, the report); cold: numba's cache empty; warm: {repeat} runs after it"
+          + (f"; interleaved run by run with the cvxid of {args.against} (parameters differ: the largest relative "
+             "difference of its reported parameters from this one's, inf where they report other parameters)"
+             if args.against else ""))
+    shown = frame if frame["error"].astype(bool).any() else frame.drop(columns="error")
+    print(shown.to_string(index=False, float_format=lambda v: f"{v:.3g}"))
     if args.json:
         with open(args.json, "w") as fh:
             json.dump(plain({"rows": frame.to_dict(orient="records")}), fh, indent=2)
@@ -354,9 +383,17 @@ def main(argv=None) -> int:
     p_bench.add_argument("--systems", action="store_true", help="also print one row per system (--heldout)")
     p_bench.add_argument("--long", default=None,
                          help="record lengths in samples, e.g. 1e5,1e6,2e6,1e7: seconds, peak memory and accuracy")
+    p_bench.add_argument("--speed", nargs="?", const=",".join(SPEED_JOBS), default=None, metavar="NAMES",
+                         help="wall seconds of `cvxid run`, cold and warm, each in a fresh process: shipped problems "
+                              f"or spec files (default {','.join(SPEED_JOBS)})")
+    p_bench.add_argument("--repeat", type=int, default=None, help="warm runs per job (--speed, default 5)")
+    p_bench.add_argument("--against", default=None,
+                         help="another copy of cvxid to time beside this one, interleaved: the folder holding its "
+                              "cvxid/ (--speed)")
     args = parser.parse_args(argv)
-    if args.command == "bench" and not (args.heldout or args.long) and not args.spec:
-        parser.error("bench needs a SPEC (or --heldout, or --long)")
+    if args.command == "bench" and not (args.heldout or args.long or args.speed or args.repeat is not None
+                                        or args.against) and not args.spec:
+        parser.error("bench needs a SPEC (or --heldout, --long or --speed)")
     set_quiet(args.quiet)
     warnings.simplefilter("ignore", UserWarning)  # cvxid's own warnings are reported in the result
     previous = _stop_on_sigterm()

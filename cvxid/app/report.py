@@ -12,7 +12,8 @@ from cvxid.errors import CvxidError
 
 
 def plain(value):
-    """JSON-safe values: NaN and infinities become null (strict JSON has neither)."""
+    """JSON-safe values: NaN and infinities become null (strict JSON has neither), numpy's
+    numbers and truth values Python's."""
     if isinstance(value, dict):
         return {str(k): plain(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
@@ -21,6 +22,8 @@ def plain(value):
         return float(value) if np.isfinite(value) else None
     if isinstance(value, np.integer):
         return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
     return value
 
 

@@ -31,6 +31,7 @@ from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine, zeroed
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
+from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
 from cvxid.identify.given import check_given
 from cvxid.identify.loss import huber_refit
@@ -231,9 +232,20 @@ def _look_past_the_range(out: RunResult) -> None:
 def _check_given(out: RunResult) -> None:
     """The values the spec gives (a mass, a feedback gain, a tie) tested against the
     training record at the final polish (:func:`~cvxid.identify.given.check_given`), into
-    ``out.given``; :func:`_warn_given` says which the record disagrees with."""
+    ``out.given``, a disagreement withdrawn where the test record's free runs contradict it;
+    :func:`_warn_given` says which the record disagrees with."""
     if out.polish is not None:
-        out.given = check_given(out.polish, out.train, _schedule(out.system.spec))
+        out.given = check_given(out.polish, out.train, _schedule(out.system.spec),
+                                None if out.test is None else (lambda system: _test_residual(system, out.test)))
+
+
+def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | None:
+    """``system``'s free-run residual on ``test``, every coordinate, from the initial state
+    the comparison estimates (None where it does not simulate)."""
+    compared = compare_system(system, test).values()
+    if any(c.free_run is None for c in compared):
+        return None
+    return np.concatenate([c.measured - c.free_run for c in compared])
 
 
 def _disagreeing(out: RunResult) -> list:

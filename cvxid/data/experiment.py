@@ -170,7 +170,7 @@ class Experiment:
         if k is not None:
             raise CvxidError(
                 f"experiment '{self.name}': time is not strictly increasing at sample {k + 1} "
-                f"(t = {t[k]:g} then {t[k + 1]:g}); sort the record and remove repeated times"
+                f"(t = {t[k]:g} then {t[k + 1]:g}); {step_back_fix(t, k)}"
             )
         dt = (t[-1] - t[0]) / (t.size - 1)
         dev = max(steps.max() - dt, dt - steps.min()) / dt
@@ -343,6 +343,25 @@ class Experiment:
         if self.velocities:
             parts.append(f"  measured velocities: {', '.join(self.velocities)}")
         return "\n".join(parts)
+
+
+RESTART_STEPS = 10
+"""A time column that goes back by more than this many of its median steps restarted (a
+logger's clock reset mid-file), rather than holding rows out of order (:func:`step_back_fix`)."""
+
+
+def step_back_fix(t: np.ndarray, k: int) -> str:
+    """What to do where the time ``t`` does not increase after sample ``k``: a clock that
+    restarted (it goes back by more than :data:`RESTART_STEPS` steps) holds two records,
+    which sorting would interleave (an outside check was told to sort one); a repeated
+    stamp or a few rows out of order, the usual fix."""
+    steps = np.diff(t[np.isfinite(t)])
+    typical = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
+    if typical > 0 and t[k] - t[k + 1] > RESTART_STEPS * typical:
+        return (f"the clock goes back by {t[k] - t[k + 1]:.6g} s there, as a logger's that restarted: the file holds "
+                f"two records; cut it there into two (a data table's samples = [first, end], e.g. [0, {k + 1}] and "
+                f"[{k + 1}, {t.size}]) rather than sorting it, which would interleave them")
+    return "sort the file and remove repeated rows"
 
 
 def first_step_back(t: np.ndarray) -> int | None:

@@ -301,14 +301,15 @@ class ProblemSpec:
         return record if record.name != Experiment.name else replace(record, name=which)
 
     def warn_overlap(self, train: Experiment, test: Experiment) -> None:
-        """Warn when ``test``, read from ``train``'s own file, holds samples of ``train``'s
-        part of it, or, read from another file or given from memory, repeats ``train``
-        sample for sample on :data:`COPIED` of its stretches or more
-        (:func:`~cvxid.data.overlap.copied_share`: an outside check's renamed copy of the
-        training file was reported as a held-out fit): the test figures, and the diagnosis's
-        choices, are then on data the fit saw."""
+        """Warn when ``test``, read from ``train``'s own output columns of its file, holds
+        samples of ``train``'s part of it, or, read from other columns, another file or
+        given from memory, repeats ``train`` sample for sample on :data:`COPIED` of its
+        stretches or more (:func:`~cvxid.data.overlap.copied_share`: an outside check's
+        renamed copy of the training file was reported as a held-out fit): the test figures,
+        and the diagnosis's choices, are then on data the fit saw."""
         tables = self.data.get("train", {}), self.data.get("test", {})
-        if _same_file(self.folder, *tables):
+        if _same_file(self.folder, *tables) and self._outputs(tables[0], "data.train") == \
+                self._outputs(tables[1], "data.test"):
             shared = np.count_nonzero((test.time >= train.time[0]) & (test.time <= train.time[-1]))
             said = (f"reads {shared} of its {test.n} samples ({100 * shared / test.n:.3g} %) from the part of the same "
                     "file that [data.train] reads") if shared else ""
@@ -342,12 +343,20 @@ class ProblemSpec:
                           stacklevel=2)
         return experiment
 
+    def _outputs(self, table: Table, where: str = "data") -> dict[str, str]:
+        """The file's columns a data table reads as the outputs, by coordinate (as
+        :meth:`_load` reads them: a table that leaves ``output`` out reads each
+        coordinate's own name).  Two tables of one file whose outputs are other columns
+        (the paper's ``.mat`` holds its training and test records side by side, ``x_tr``
+        and ``x_tst``) read two records, whatever their samples."""
+        return _names(table.get("output", {c: c for c in self.coordinates}), self.coordinates[0], where, "output")
+
     def _load(self, which: str, table: Table, where: str, inputs: list[str], velocity, first: str) -> Experiment:
         return load(
             self.folder / _string(table, "file", where),
             time=None if "dt" in table else _string(table, "time", where, "t"),
             dt=table.get("dt"),
-            outputs=_names(table.get("output", {c: c for c in self.coordinates}), first, where, "output"),
+            outputs=self._outputs(table, where),
             inputs=_names(table.get("input", {i: i for i in inputs}), inputs[0], where, "input"),
             velocities=_names(velocity, first, where, "velocity") if velocity else None,
             name=which,
