@@ -115,6 +115,9 @@ def test_bootstrap_settings_are_checked():
 def test_paper_algorithm1_picks_order_3_with_stable_inclusion():
     result = run(ROOT / "problems" / "paper_duffing_data.toml")
     assert result.order_search.best_order == 3
+    # the rank-deficient columns of order 6 are said as the order search's, not as the order-3 model's
+    deficient = [w for w in result.warnings if "rank-deficient" in w]
+    assert deficient and all(w.startswith("the order search, order 6: ") for w in deficient), deficient
     inclusion = result.bootstrap.inclusion
     true_terms = {"x''", "x", "x'", "x^2 x'", "x'^3", "x^3", "x'''"}
     assert true_terms <= set(inclusion.index) and len(inclusion) > len(true_terms)
