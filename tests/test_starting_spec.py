@@ -156,6 +156,9 @@ def test_names_with_units_quotes_or_greek_give_a_spec_that_reads(tmp_path, heade
     # an outside check: a logger's clock that restarted was to be sorted, interleaving two records
     (lambda rows: np.vstack([rows[:1500], rows[:1500]]), "the clock goes back by 1.499 s there, as a logger's that "
                                                          "restarted: the file holds two records; cut it there"),
+    # the re-review: one stamp far off both its neighbours is a corrupted stamp, not a restart
+    (lambda rows: np.vstack([rows[:1000], [[400.0, 0.0, 0.0]], rows[1001:]]), "the stamp 400 is out of line with "
+                                                                              "both its neighbours"),
     (lambda rows: rows[:0], "the file has 0 data rows"),
     (lambda rows: rows[:1], "the file has 1 data row: nothing to identify"),
     (lambda rows: np.column_stack([rows[:, :2], 0 * rows[:, 2]]), "input 'f' is constant"),  # a free decay

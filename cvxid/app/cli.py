@@ -19,8 +19,8 @@ from cvxid import __version__
 from cvxid.data.experiment import TIME_UNITS
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.parallel import BACKENDS
-from cvxid.tools.speed import JOBS as SPEED_JOBS
 from cvxid.progress import set_quiet
+from cvxid.tools.speed import JOBS as SPEED_JOBS
 
 
 def _run(args) -> int:

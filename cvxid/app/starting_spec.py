@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from cvxid.data.experiment import (READERS, TIME_UNITS, counts_milliseconds, first_step_back, first_text,
-                                   missing_rows, seconds_per, step_back_fix)
+                                   missing_rows, restarted, seconds_per, step_back_fix)
 from cvxid.data.hold import HELD_CHECKED, looks_held
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.metrics import band_edge
@@ -212,9 +212,10 @@ def detect_columns(columns: dict, time: str | None = None, output: str | None = 
         row = first_step_back(t)
         if row is not None:
             raise CvxidError(f"the time column '{time}' does not increase from data row {row + 1} to {row + 2} "
-                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): {step_back_fix(t, row)}; "
-                             "if the stamps repeat because they are rounded (epoch seconds need more than 10 "
-                             "digits), give the sample step with --dt instead of a time column")
+                             f"({t[row]:.10g}, then {t[row + 1]:.10g}): {step_back_fix(t, row)}" + (
+                                 "" if restarted(t, row) else "; if the stamps repeat because they are rounded "
+                                 "(epoch seconds need more than 10 digits), give the sample step with --dt instead "
+                                 "of a time column"))
         lost = missing_rows(t)  # rows lost from a uniform record: the median step, and gaps where they were
         dt = float((t[-1] - t[0]) / (t.size - 1)) if lost is None else float(np.median(np.diff(t)))
         time_unit = time_unit or unit_of(time)

@@ -350,17 +350,27 @@ RESTART_STEPS = 10
 logger's clock reset mid-file), rather than holding rows out of order (:func:`step_back_fix`)."""
 
 
-def step_back_fix(t: np.ndarray, k: int) -> str:
-    """What to do where the time ``t`` does not increase after sample ``k``: a clock that
-    restarted (it goes back by more than :data:`RESTART_STEPS` steps) holds two records,
-    which sorting would interleave (an outside check was told to sort one); a repeated
-    stamp or a few rows out of order, the usual fix."""
+def restarted(t: np.ndarray, k: int) -> bool:
+    """Whether the time ``t`` goes back after sample ``k`` as a clock that restarted: by more
+    than :data:`RESTART_STEPS` of its median steps, after an ordinary step into ``k`` (one
+    stamp far ahead of its neighbours is a corrupted stamp, not a restart)."""
     steps = np.diff(t[np.isfinite(t)])
     typical = float(np.median(steps[steps > 0])) if np.any(steps > 0) else 0.0
-    if typical > 0 and t[k] - t[k + 1] > RESTART_STEPS * typical:
+    into = t[k] - t[k - 1] if k > 0 else typical
+    return bool(typical > 0 and t[k] - t[k + 1] > RESTART_STEPS * typical and abs(into - typical) <= typical)
+
+
+def step_back_fix(t: np.ndarray, k: int) -> str:
+    """What to do where the time ``t`` does not increase after sample ``k`` (counted from the
+    first sample read): a clock that restarted (:func:`restarted`) holds two records, which
+    sorting would interleave (an outside check was told to sort one); a repeated stamp or a
+    few rows out of order, the usual fix; one stamp far off both its neighbours, its own."""
+    if restarted(t, k):
         return (f"the clock goes back by {t[k] - t[k + 1]:.6g} s there, as a logger's that restarted: the file holds "
-                f"two records; cut it there into two (a data table's samples = [first, end], e.g. [0, {k + 1}] and "
-                f"[{k + 1}, {t.size}]) rather than sorting it, which would interleave them")
+                f"two records; cut it there into two, before and from the sample after {t[k]:.10g} s (the samples "
+                "read so far hold both), rather than sorting it, which would interleave them")
+    if k > 0 and t[k] - t[k - 1] > RESTART_STEPS * max(t[k + 1] - t[k - 1], 0.0):
+        return f"the stamp {t[k]:.10g} is out of line with both its neighbours (a corrupted stamp): correct it or drop its row"
     return "sort the file and remove repeated rows"
 
 

@@ -53,7 +53,9 @@ simulation RMS 0.010032 against 0.010036, p = 0.0002; the test record's 0.009988
 test record, went unsaid from a 2 s one, 0.01 % worse there, when the test record had to
 confirm it beyond chance); a chance bound on the test record's effective rows instead
 missed a right gain whose freed fit erred 24 % more there (a missing friction's smooth
-misfit leaves few effective rows).  The given value stays
+misfit leaves few effective rows).  A freed fit that does not simulate the test record is
+contradicted by it.  The counts are samples: a test record sampled faster than the training
+one weighs more per second.  The given value stays
 (it is the user's); the run says which values the record disagrees with, what each becomes when
 estimated and where the delay moves (a missing effect can also make a right value look
 wrong: where several disagree, the one whose estimate is plausible is the suspect).  A
@@ -106,9 +108,11 @@ class GivenCheck:
     and the first-order change it asks for; where the refit ran, the polish with the value
     free (``estimate``: its value there, a tie's factor; ``tau`` the delay; ``rms`` the
     training simulation RMS against ``rms_given``; ``test_rms`` against ``test_rms_given``
-    the test record's free runs, where the run has one, and ``contradicted`` where the
-    given value's beats the freed fit's there beyond chance).  ``reason`` says why a value
-    was not checked (its statistic and p-value are then NaN)."""
+    the test record's free runs, and ``contradicted`` where the test record contradicts the
+    training record's disagreement: the freed fit loses more log-likelihood there than it
+    gains on the training record, or does not simulate it; both only where the run has a
+    test record and the training record disagrees).  ``reason`` says why a value was not
+    checked (its statistic and p-value are then NaN)."""
 
     name: str  # the parameter as the polish names it ("m", "gain", a tie's left term; "label:column" when coupled)
     kind: str  # "mass", "gain" or "tie"
@@ -123,8 +127,8 @@ class GivenCheck:
     tau: float | None = None
     rms: float | None = None
     rms_given: float | None = None
-    test_rms: float | None = None  # the test record's free-run RMS of the freed fit (None: no test record, no refit,
-    #                                 or the freed fit does not simulate it)
+    test_rms: float | None = None  # the test record's free-run RMS of the freed fit (None: no test record, no
+    #                                 disagreement on the training record, or the freed fit does not simulate it)
     test_rms_given: float | None = None  # and of the fit with the value given
     contradicted: bool = False  # the test record contradicts the training record's disagreement
     fix: str = ""  # how to estimate it instead
@@ -259,7 +263,7 @@ def check_given(best: PolishResult, train: Experiment, schedule: dict | None = N
         "tau" not in names or delay.end(best.parameters["tau"], train.dt) is not None)
     scored = [_scored(item, best, train, r, J) for item in given]
     level = LEVEL / max(sum(not check.reason for check in scored), 1)
-    return tuple(_refitted(check, item, best, train, schedule, level, test_residual)
+    return tuple(_refitted(check, item, best, train, schedule, level, test_residual, r.size)
                  if not check.reason and (at_end or (check.p < level and abs(check.change) >= CHANGE / 2)) else check
                  for check, item in zip(scored, given))
 
@@ -283,8 +287,10 @@ def _scored(item: _Given, best: PolishResult, train: Experiment, r: np.ndarray, 
 
 
 def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experiment, schedule: dict | None,
-              level: float, test_residual: Callable[[IdentifiedSystem], np.ndarray | None] | None) -> GivenCheck:
-    """``check`` with the polish of ``item.freed``: the value it estimates, the delay, and
+              level: float, test_residual: Callable[[IdentifiedSystem], np.ndarray | None] | None,
+              samples: int) -> GivenCheck:
+    """``check`` with the polish of ``item.freed`` (``samples``: the training residual's,
+    every coordinate's): the value it estimates, the delay, and
     whether it disagrees: its training simulation error beyond the likelihood-ratio bound
     on the freed fit's effective rows, the value moved by more than :data:`CHANGE`, the
     delay not held at the same end of its range (:func:`_held`), and the test record (where
@@ -308,11 +314,12 @@ def _refitted(check: GivenCheck, item: _Given, best: PolishResult, train: Experi
     chance = max(free.input_noise_inflation, 1.0) * chi2.ppf(1 - level, 1)
     moved = abs(estimate - check.given) > CHANGE * abs(check.given)
     held = _held(best, free, train)
-    disagrees = free.rms_after**2 * (1 + chance / max(free.effective_rows, 1.0)) < best.rms_after**2 and moved
-    samples = train.n * len(best.system.coordinates)  # (every coordinate's residual, as the test record's)
+    disagrees = bool(free.rms_after**2 * (1 + chance / max(free.effective_rows, 1.0)) < best.rms_after**2
+                     and moved and held is None)
     gain = samples * np.log(best.rms_after**2 / free.rms_after**2)  # (the training record's log-likelihood gain)
-    contradicted, test_rms, test_rms_given = _test_record(free.system, best.system, test_residual, gain)
-    return replace(check, disagrees=bool(disagrees and held is None and not contradicted),
+    contradicted, test_rms, test_rms_given = _test_record(free.system, best.system, test_residual, gain) \
+        if disagrees else (False, None, None)  # (only a disagreement is put to the test record)
+    return replace(check, disagrees=disagrees and not contradicted,
                    estimate=float(estimate), interval=None if interval is None else tuple(map(float, interval)),
                    tau=free.parameters.get("tau"), rms=float(free.rms_after), rms_given=float(best.rms_after),
                    test_rms=test_rms, test_rms_given=test_rms_given, contradicted=contradicted, held=held)
@@ -381,7 +388,8 @@ def _test(check: GivenCheck) -> str:
     if check.test_rms is None:
         return "the freed fit does not simulate it"
     change = 100 * (check.test_rms / check.test_rms_given - 1)
-    return f"RMS {check.test_rms:.4g} freed against {check.test_rms_given:.4g} given ({change:+.2g} %)"
+    return f"RMS {check.test_rms:.4g} freed against {check.test_rms_given:.4g} given " + \
+        (f"({change:+.2g} %)" if abs(change) < 10 else f"({change:+.0f} %)")
 
 
 def _p(p: float) -> str:
