@@ -310,3 +310,24 @@ def test_a_parameter_pressed_against_its_bound_is_not_free_in_the_score_test():
     assert _pressed(problem, r, J)[4]
     J[:, 4] = [2.0 + 1e-12, 1.0]  # a gradient of round-off (1e-12 against |J_i| |r| = 5) presses nothing
     assert not _pressed(problem, r, J)[4]
+
+
+def test_the_candidates_fitted_as_joblib_tasks_give_the_serial_result():
+    """Issue 15: the diagnosis's candidate fits run on the engine the user picks.  With
+    ``n_jobs = 2`` a round's significant candidates are fitted together (threads, then
+    worker processes) and read best first: the same steps, test errors and final model as
+    one after another."""
+    from cvxid.diagnosis.simulation import LEVEL
+    from cvxid.parallel import engine
+
+    lacking = polished(("x'", "x"))
+    names = ["quadratic_damping", "offset", "cubic_stiffness", "quadratic_stiffness", "cubic_damping"]
+    serial = refine_by_simulation(lacking, record(0), record(1), names)
+    ranking = serial.rankings[0]
+    assert (ranking["score"] >= chi2.ppf(LEVEL, ranking["df"])).sum() > 1  # (several fitted together)
+    for backend in ("threading", "loky"):
+        with engine(backend):
+            together = refine_by_simulation(lacking, record(0), record(1), names, n_jobs=2)
+        assert [(s.added, s.kept, s.test_rms_after) for s in together.steps] == \
+            [(s.added, s.kept, s.test_rms_after) for s in serial.steps], backend
+        assert together.polish.parameters == serial.polish.parameters, backend

@@ -1139,7 +1139,8 @@ def _polish(out: RunResult, rows: SystemBuilder):
     settings = out.spec.diagnose
     if settings is not None and settings.refine and settings.simulation and out.test is not None:
         out.simulation_refinement = refine_by_simulation(out.polish, out.train, out.test, settings.candidates,
-                                                         settings.max_steps, _schedule(out.system.spec))
+                                                         settings.max_steps, _schedule(out.system.spec),
+                                                         out.spec.fit.n_jobs)
         out.polish = out.simulation_refinement.polish
     out.system = out.polish.system
     _delays_of_polish(out)

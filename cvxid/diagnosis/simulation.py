@@ -42,6 +42,7 @@ from typing import Sequence
 
 import numpy as np
 import pandas as pd
+from joblib import Parallel, delayed
 from scipy.special import gammaln
 from scipy.stats import chi2
 
@@ -244,10 +245,13 @@ def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | N
 
 def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experiment,
                          candidates: Sequence[str] | None = None, max_steps: int = 5,
-                         schedule: dict | None = None) -> SimulationRefinement:
+                         schedule: dict | None = None, n_jobs: int = 1) -> SimulationRefinement:
     """Score the candidates missing from the polished system; try the significant ones,
     best first, each added and polished, until the test record's free-run error falls
     beyond chance (then score again from the new system); at most ``max_steps`` tries.
+    With ``n_jobs`` other than 1 a round's significant candidates are fitted together, as
+    joblib tasks on the engine in use (:mod:`cvxid.parallel`), and read best first as the
+    serial tries are (the same result; the fits past the first kept are spent).
     When an effect was kept, the final system is polished again as ``polished`` was
     (``schedule``: :func:`~cvxid.identify.output_error.polish`'s settings): its delay's
     profile, and every interval read from it, are of the system it reports (the first
@@ -269,8 +273,11 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         rankings.append(ranking)
         kept = None
         significant = ranking["score"] >= chi2.ppf(LEVEL, ranking["df"])
-        for best in ranking.index[significant.to_numpy()][:max_steps - len(steps)]:
-            tried, fitted, after = _try(system, found[best], ranking, current, train, test, before)
+        names = list(ranking.index[significant.to_numpy()][:max_steps - len(steps)])
+        tries = (delayed(_try)(system, found[name], ranking, current, train, test, before) for name in names)
+        results = Parallel(n_jobs=n_jobs)(tries) if n_jobs != 1 and len(names) > 1 else \
+            (function(*args, **kwargs) for function, args, kwargs in tries)  # (serial: lazily, to the first kept)
+        for best, (tried, fitted, after) in zip(names, results):
             steps.append(tried)
             if tried.kept:
                 kept, added[best] = fitted, found[best]

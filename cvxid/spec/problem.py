@@ -150,6 +150,7 @@ class FitSettings:
     backend: str = "loky"  # where joblib's work runs (cvxid.parallel)
     scheduler: str | None = None  # a dask or ray cluster's address
     prune: bool = True  # the selected terms pruned by simulation error after the polish (cvxid.identify.stepwise)
+    n_jobs: int = 1  # joblib workers: bootstrap samples (also in BootstrapSettings), the diagnosis's candidate fits
 
 
 COPIED = 0.1
@@ -830,7 +831,6 @@ def _fit(table: Table, default_estimator: str = "adaptive_lasso") -> FitSettings
     if scheduler is not None:
         scheduler = _string(table, "scheduler", where, "")
     check_backend(backend, scheduler, where=f"spec: [{where}] backend")
-    n_jobs(table)
     estimator = _string(table, "estimator", where, default_estimator, choices=SELECTORS)
     settings = FitSettings(
         backend=backend,
@@ -849,6 +849,7 @@ def _fit(table: Table, default_estimator: str = "adaptive_lasso") -> FitSettings
         loss=_string(table, "loss", where, "squared", choices=("squared", "huber")),
         allow_large=_bool(table, "allow_large", where, False),
         prune=_bool(table, "prune", where, True),
+        n_jobs=n_jobs(table),
     )
     if "stability" in table and settings.stability is not None and settings.bootstrap is not None:
         raise CvxidError("spec: [fit] stability and bootstrap both select on resampled records, and with bootstrap "
