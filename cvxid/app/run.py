@@ -26,12 +26,11 @@ from cvxid.app.result import RunResult
 from cvxid.data.experiment import Experiment
 from cvxid.data.hold import looks_held
 from cvxid.diagnosis.acceptance import stop_reason
-from cvxid.diagnosis.compare import compare_system
+from cvxid.diagnosis.compare import compare_system, free_run_residual
 from cvxid.diagnosis.ranking import diagnose
 from cvxid.diagnosis.refine import refine, zeroed
 from cvxid.diagnosis.simulation import refine_by_simulation
 from cvxid.errors import CvxidError, CvxidWarning, EquationErrorDelayWarning
-from cvxid.identified import IdentifiedSystem
 from cvxid.identify.bootstrap import BootstrapSettings, bootstrap, with_delays
 from cvxid.identify.given import check_given
 from cvxid.identify.loss import huber_refit
@@ -236,16 +235,7 @@ def _check_given(out: RunResult) -> None:
     :func:`_warn_given` says which the record disagrees with."""
     if out.polish is not None:
         out.given = check_given(out.polish, out.train, _schedule(out.system.spec),
-                                None if out.test is None else (lambda system: _test_residual(system, out.test)))
-
-
-def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | None:
-    """``system``'s free-run residual on ``test``, every coordinate, from the initial state
-    the comparison estimates (None where it does not simulate)."""
-    compared = compare_system(system, test).values()
-    if any(c.free_run is None for c in compared):
-        return None
-    return np.concatenate([c.measured - c.free_run for c in compared])
+                                None if out.test is None else (lambda system: free_run_residual(system, out.test)))
 
 
 def _disagreeing(out: RunResult) -> list:

@@ -255,6 +255,16 @@ def compare_system(system: IdentifiedModel | IdentifiedSystem, experiment: Exper
     return out
 
 
+def free_run_residual(system: IdentifiedModel | IdentifiedSystem, experiment: Experiment) -> np.ndarray | None:
+    """The free run's error on ``experiment`` (from the initial state :func:`compare_system`
+    estimates), every coordinate's one after another, its finite samples (None when it
+    diverges)."""
+    compared = compare_system(system, experiment)
+    if any(c.free_run is None for c in compared.values()):
+        return None
+    return np.concatenate([(c.free_run - c.measured)[np.isfinite(c.free_run)] for c in compared.values()])
+
+
 def mean_fit(comparisons: dict[str, Comparison], which: str = "fit_percent") -> float | None:
     """The mean over coordinates of a fit (``"fit_percent"``, the free run's, or
     ``"k_step_fit_percent"``); None when any coordinate's simulation diverged."""

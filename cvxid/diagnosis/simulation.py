@@ -49,7 +49,7 @@ from scipy.stats import chi2
 from cvxid.data.experiment import Experiment
 from cvxid.diagnosis.candidates import Candidate, candidates as candidates_of, default_candidates, missing, \
     with_candidate, with_input_delay
-from cvxid.diagnosis.compare import compare_system
+from cvxid.diagnosis.compare import free_run_residual
 from cvxid.errors import CvxidError, CvxidWarning
 from cvxid.identified import IdentifiedModel, IdentifiedSystem
 from cvxid.identify.output_error import (PolishResult, linearisation, output_error, polish, residual, typical_size,
@@ -234,15 +234,6 @@ def _holds(system: IdentifiedSystem, candidate: Candidate) -> bool:
     return any(system.models[label].coefficients.get(candidate.term.name, 0.0) != 0 for label in candidate.equations)
 
 
-def _test_residual(system: IdentifiedSystem, test: Experiment) -> np.ndarray | None:
-    """The free run's error on the test record, every coordinate's one after another (None
-    when it diverges)."""
-    compared = compare_system(system, test)
-    if any(c.free_run is None for c in compared.values()):
-        return None
-    return np.concatenate([(c.free_run - c.measured)[np.isfinite(c.free_run)] for c in compared.values()])
-
-
 def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experiment,
                          candidates: Sequence[str] | None = None, max_steps: int = 5,
                          schedule: dict | None = None, n_jobs: int = 1) -> SimulationRefinement:
@@ -259,7 +250,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
     training record worse than the kept fit did, the kept fit is reported, its intervals
     the standard errors' alone."""
     current, steps, rankings, added = polished, [], [], {}
-    before = _test_residual(polished.system, test)  # then each kept model's own, from its trial
+    before = free_run_residual(polished.system, test)  # then each kept model's own, from its trial
     spread = min(np.nanstd(test.output(c)) for c in polished.system.coordinates)  # (each coordinate's, at least)
     precise = bool(before is not None and np.sqrt(np.mean(before**2)) < PRECISION * spread)
     while before is not None and not precise and len(steps) < max_steps:
@@ -295,7 +286,7 @@ def refine_by_simulation(polished: PolishResult, train: Experiment, test: Experi
         # other basin fitted the training record better and the test record 50 % worse);
         # without a profile of its own its intervals are the standard errors'
         better = again.rms_after <= current.rms_after * (1 + 1e-3)
-        judged = _test_residual(again.system, test) if better else None
+        judged = free_run_residual(again.system, test) if better else None
         kept = again if better and _no_worse(judged, before) else replace(current, profile=None)
         if better and kept is not again:
             warnings.warn(
@@ -336,7 +327,7 @@ def _try(system: IdentifiedSystem, candidate: Candidate, ranking: pd.DataFrame, 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", CvxidWarning)  # the new model is judged on the test record
             fitted = output_error(start, train, current.initial, step=train.dt, max_iterations=ITERATIONS)
-        after = _test_residual(fitted.system, test)
+        after = free_run_residual(fitted.system, test)
     except (SimulationDiverged, CvxidError):
         fitted, after = None, None
     old = float(before @ before)
